@@ -1,0 +1,5 @@
+"""Allow ``python -m mkflight``."""
+
+from mkflight.cli import main
+
+raise SystemExit(main())

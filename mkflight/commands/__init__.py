@@ -1,0 +1,1 @@
+"""Command implementations: one typed ``cmd_*() -> int`` per CLI subcommand."""

@@ -1,0 +1,306 @@
+"""Configuration: every constant, gain and limit, as frozen msgspec Structs decoded from YAML.
+
+The defaults below are the seed's and SPEC.md's; ``config.yaml`` at the repository root
+spells out the same values (a test keeps them identical). Each field carries its unit in
+its name and its range in a ``Meta``; msgspec rejects an unknown key, a wrong type or an
+out-of-range value with the path (``$.control.kp_xy``), which :func:`load_config` turns
+into a :class:`ConfigError` naming the dotted key. The loader never prints or exits.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import msgspec
+import yaml
+from msgspec import Meta
+
+from mkflight.errors import ConfigError
+
+Sign = Literal[-1, 1]
+PosFloat = Annotated[float, Meta(gt=0)]
+NonNegFloat = Annotated[float, Meta(ge=0)]
+Gain = Annotated[float, Meta(ge=0, le=1000)]
+Step = Annotated[int, Meta(ge=0, le=1080)]
+
+
+class _Section(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """Base of every config section: immutable and strict."""
+
+
+class MkSigns(_Section):
+    """MK command sign per axis: MK counts = sign x our angle (SPEC §1: all -1)."""
+
+    nick: Sign = -1
+    roll: Sign = -1
+    yaw: Sign = -1
+
+
+class MkConfig(_Section):
+    """The FlightCtrl link and the MK raw<->SI calibration (SPEC §1-2, seed §D eq 7-8)."""
+
+    port: str = "/dev/ttyUSB0"
+    baudrate: Annotated[int, Meta(ge=1200, le=4_000_000)] = 57600
+    debug_interval_10ms: Annotated[int, Meta(ge=1, le=255)] = 5
+    resubscribe_s: Annotated[float, Meta(gt=0, le=3.5)] = 2.0
+    stale_s: Annotated[float, Meta(gt=0, le=5)] = 0.2
+    release_after_stale_s: Annotated[float, Meta(gt=0, le=5)] = 1.0
+    version_retry_s: Annotated[float, Meta(gt=0, le=5)] = 0.5
+    answer_timeout_s: Annotated[float, Meta(gt=0, le=30)] = 2.5
+    min_frame_gap_s: Annotated[float, Meta(ge=0, le=0.05)] = 0.003
+    release_frames: Annotated[int, Meta(ge=1, le=50)] = 5
+    release_interval_s: Annotated[float, Meta(ge=0.003, le=0.5)] = 0.05
+    handshake_s: Annotated[float, Meta(ge=1.0, le=10)] = 1.0
+    reopen_backoff_s: Annotated[float, Meta(gt=0, le=10)] = 0.1
+    reopen_backoff_max_s: Annotated[float, Meta(gt=0, le=60)] = 2.0
+    signs: MkSigns = msgspec.field(default_factory=MkSigns)
+    counts_per_rad: Annotated[float, Meta(gt=0, le=1000)] = 120.0
+    angle_unit_deg: PosFloat = 0.1
+    acc_nick_counts_per_g: PosFloat = 606.3
+    acc_roll_counts_per_g: PosFloat = 603.44
+    acc_z_counts_per_mps2: PosFloat = 15.5
+    acc_z_offset_mps2: float = 9.8
+    voltage_unit_v: PosFloat = 0.1
+    g_mps2: Annotated[float, Meta(ge=9.7, le=9.9)] = 9.81
+
+
+class LaserConfig(_Section):
+    """The Hokuyo URG and the laser hat (SPEC §2-3, seed §K eq 26)."""
+
+    port: str = "/dev/ttyACM0"
+    scan_steps: tuple[Step, Step] = (150, 725)
+    hat_steps: tuple[Step, Step] = (44, 127)
+    hat_offset_m: Annotated[float, Meta(ge=0, le=1)] = 0.05
+    min_range_m: NonNegFloat = 0.02
+    max_range_m: PosFloat = 5.6
+    delay_s: NonNegFloat = 0.1
+
+
+class EstimationConfig(_Section):
+    """Complementary filter (seed §H eq 15-17) and latency compensation (eq 18-20)."""
+
+    filter_period_s: Annotated[float, Meta(gt=0, le=1)] = 0.05
+    filter_gain_per_s: Gain = 0.5
+    filter_gain_z_per_s: Gain = 0.5
+    latency_compensation: bool = True
+    imu_history_s: Annotated[float, Meta(gt=0, le=5)] = 0.5
+
+
+class ControlConfig(_Section):
+    """Position, velocity, yaw and altitude loops and their limits (SPEC §4, seed §C, J, K)."""
+
+    kp_xy: Gain = 1.0
+    kd_xy: Gain = 0.0
+    max_speed_mps: Annotated[float, Meta(gt=0, le=5)] = 0.5
+    kp_vxy: Gain = 2.0
+    ki_vxy: Gain = 0.0
+    kd_vxy: Gain = 0.0
+    max_tilt_rad: Annotated[float, Meta(gt=0, le=0.6)] = 0.30
+    kp_yaw: Gain = 40.0
+    ki_yaw: Gain = 0.0
+    kd_yaw: Gain = 0.0
+    yaw_max_counts: Annotated[int, Meta(ge=0, le=127)] = 40
+    kp_z: Gain = 1.5
+    ki_z: Gain = 0.3
+    kd_z: Gain = 0.0
+    max_climb_mps: Annotated[float, Meta(gt=0, le=2)] = 0.5
+    kp_vz: Gain = 30.0
+    ki_vz: Gain = 10.0
+    kd_vz: Gain = 0.0
+    integral_limit_gas: Annotated[float, Meta(ge=0, le=255)] = 30.0
+    hover_gas: Annotated[float, Meta(ge=0, le=255)] = 100.0
+    hover_voltage_v: PosFloat = 11.8
+    gas_max: Annotated[int, Meta(ge=0, le=255)] = 130
+    climb_mps: Annotated[float, Meta(gt=0, le=2)] = 0.3
+    land_mps: Annotated[float, Meta(gt=0, le=2)] = 0.3
+    takeoff_height_m: Annotated[float, Meta(gt=0, le=3)] = 0.6
+    land_detect_height_m: NonNegFloat = 0.05
+    land_detect_s: NonNegFloat = 1.0
+
+
+class SafetyConfig(_Section):
+    """Failsafe thresholds (SPEC §5)."""
+
+    box_m: Annotated[float, Meta(gt=0, le=50)] = 2.0
+    max_height_m: Annotated[float, Meta(gt=0, le=10)] = 1.5
+    warn_voltage_v: Annotated[float, Meta(ge=0, le=60)] = 10.8
+    land_voltage_v: Annotated[float, Meta(ge=0, le=60)] = 10.4
+    voltage_filter_s: Annotated[float, Meta(gt=0, le=60)] = 2.0
+    laser_stale_s: Annotated[float, Meta(gt=0, le=5)] = 0.3
+    degenerate_land_s: Annotated[float, Meta(ge=0, le=10)] = 1.0
+    mk_stale_s: Annotated[float, Meta(gt=0, le=5)] = 0.2
+    mk_release_s: Annotated[float, Meta(gt=0, le=10)] = 1.0
+    nonfinite_land_steps: Annotated[int, Meta(ge=1, le=100)] = 3
+
+
+class LoggingConfig(_Section):
+    """Where flight folders go (SPEC §6)."""
+
+    dir: str = "flights"
+
+
+class SimFcConfig(_Section):
+    """The FlightCtrl emulator's settings (``mk-serial.md`` §5-7)."""
+
+    version: str = "0.84a"
+    external_control: Annotated[int, Meta(ge=0, le=255)] = 200
+    stick_gas: Annotated[int, Meta(ge=0, le=255)] = 200
+    mk3mag_frames: bool = True
+    receiver_level: Annotated[int, Meta(ge=0, le=255)] = 200
+    battery_v: Annotated[float, Meta(ge=0, le=60)] = 12.4
+
+
+class SimConfig(_Section):
+    """The simulator (SPEC §8)."""
+
+    seed: Annotated[int, Meta(ge=0)] = 1
+    fc: SimFcConfig = msgspec.field(default_factory=SimFcConfig)
+
+
+class Config(_Section):
+    """The whole configuration (``config.yaml``)."""
+
+    mk: MkConfig = msgspec.field(default_factory=MkConfig)
+    laser: LaserConfig = msgspec.field(default_factory=LaserConfig)
+    estimation: EstimationConfig = msgspec.field(default_factory=EstimationConfig)
+    control: ControlConfig = msgspec.field(default_factory=ControlConfig)
+    safety: SafetyConfig = msgspec.field(default_factory=SafetyConfig)
+    logging: LoggingConfig = msgspec.field(default_factory=LoggingConfig)
+    sim: SimConfig = msgspec.field(default_factory=SimConfig)
+
+
+def _check_finite(obj: Any, path: str, source: str) -> None:
+    """Reject NaN/inf anywhere: YAML's ``.nan`` would otherwise pass every range check."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        msg = f"{source}: {path}: must be a finite number, got {obj}"
+        raise ConfigError(msg)
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            _check_finite(v, f"{path}.{k}" if path else str(k), source)
+    elif isinstance(obj, list | tuple):
+        for i, v in enumerate(obj):
+            _check_finite(v, f"{path}[{i}]", source)
+
+
+def _dotted(msgspec_path: str) -> str:
+    """``$.control.kp_xy`` -> ``control.kp_xy``."""
+    return msgspec_path.removeprefix("$.").removeprefix("$")
+
+
+def _cross_checks(cfg: Config) -> None:
+    """Rules that span fields, which a per-field range cannot express."""
+    for key in ("scan_steps", "hat_steps"):
+        lo, hi = getattr(cfg.laser, key)
+        if lo > hi:
+            msg = f"laser.{key}: first step {lo} is after last step {hi}"
+            raise ConfigError(msg)
+    if cfg.safety.land_voltage_v > cfg.safety.warn_voltage_v:
+        msg = "safety.land_voltage_v: must not exceed safety.warn_voltage_v"
+        raise ConfigError(msg)
+    if cfg.control.takeoff_height_m > cfg.safety.max_height_m:
+        msg = "control.takeoff_height_m: above safety.max_height_m"
+        raise ConfigError(msg)
+    if cfg.mk.reopen_backoff_s > cfg.mk.reopen_backoff_max_s:
+        msg = "mk.reopen_backoff_s: must not exceed mk.reopen_backoff_max_s"
+        raise ConfigError(msg)
+
+
+def config_from_dict(data: Any, source: str = "config") -> Config:
+    """Decode a plain mapping (parsed YAML) into a :class:`Config`, or raise ConfigError."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        msg = f"{source}: the top level must be a mapping of sections, got {type(data).__name__}"
+        raise ConfigError(msg)
+    _check_finite(data, "", source)
+    try:
+        cfg = msgspec.convert(data, type=Config, strict=True)
+    except msgspec.ValidationError as err:
+        text = str(err)
+        where = ""
+        if " - at `" in text:
+            text, _, at = text.rpartition(" - at `")
+            where = _dotted(at.rstrip("`"))
+        unknown = re.fullmatch(r"Object contains unknown field `(.+)`", text)
+        if unknown:
+            where = f"{where}.{unknown.group(1)}" if where else unknown.group(1)
+            text = "unknown key"
+        msg = f"{source}: {where}: {text}" if where else f"{source}: {text}"
+        raise ConfigError(msg) from err
+    _cross_checks(cfg)
+    return cfg
+
+
+def parse_override(item: str) -> tuple[list[str], Any]:
+    """Split ``section.key=value`` into a key path and a YAML-parsed value."""
+    key, sep, raw = item.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        msg = f"--set {item!r}: expected KEY=VALUE, e.g. control.kp_xy=1.2"
+        raise ConfigError(msg)
+    parts = key.split(".")
+    if any(not p for p in parts):
+        msg = f"--set {item!r}: malformed key {key!r}"
+        raise ConfigError(msg)
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else ""
+    except yaml.YAMLError as err:
+        msg = f"--set {key}: cannot parse value {raw!r}"
+        raise ConfigError(msg) from err
+    return parts, value
+
+
+def apply_override(data: dict[str, Any], parts: list[str], value: Any) -> None:
+    """Set ``data[p0][p1]... = value``, creating missing sections (unknown ones fail later)."""
+    node = data
+    for i, part in enumerate(parts[:-1]):
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            dotted = ".".join(parts[: i + 1])
+            msg = f"--set {'.'.join(parts)}: {dotted} is a value, not a section"
+            raise ConfigError(msg)
+        node = child
+    node[parts[-1]] = value
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> Config:
+    """Load the built-in defaults, then the YAML file ``path`` (if any), then ``--set`` items.
+
+    Raises:
+        ConfigError: unreadable file, bad YAML, unknown key, wrong type, out-of-range or
+            non-finite value; the message names the file and the dotted key.
+    """
+    data: Any = {}
+    source = "config"
+    if path is not None:
+        source = str(path)
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except OSError as err:
+            msg = f"{source}: cannot read config file: {err.strerror or err}"
+            raise ConfigError(msg) from err
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as err:
+            msg = f"{source}: invalid YAML: {err}"
+            raise ConfigError(msg) from err
+        if data is None:
+            data = {}
+        if not isinstance(data, dict):
+            msg = f"{source}: the top level must be a mapping of sections"
+            raise ConfigError(msg)
+    for item in overrides or []:
+        parts, value = parse_override(item)
+        apply_override(data, parts, value)
+    if overrides:
+        source = f"{source} with --set"
+    return config_from_dict(data, source)
+
+
+def config_to_dict(cfg: Config) -> dict[str, Any]:
+    """The configuration as plain builtins (for ``flight.json`` and ``config show``)."""
+    out: dict[str, Any] = msgspec.to_builtins(cfg)
+    return out

@@ -1,0 +1,1 @@
+"""The one place that opens serial ports and pseudo-terminals (the ByteStream seam)."""

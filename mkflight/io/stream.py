@@ -1,0 +1,180 @@
+"""The byte seam every link is built on, and an in-memory pair that fakes it in tests.
+
+A :class:`ByteStream` is what the MK link and the URG driver take in their constructor:
+a real serial port (:mod:`mkflight.io.serial`), the device end of a pseudo-terminal
+(:mod:`mkflight.io.pty`) or the in-memory fake below. Writes are eager (no queueing
+delay: a command goes to the kernel in the ``write`` call); reads wake on a future, so
+tests await data instead of sleeping for it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+from collections import deque
+from typing import Protocol
+
+from mkflight.errors import LinkError
+
+
+class ByteStream(Protocol):
+    """A bidirectional byte stream: a serial port, a pty end, or a fake."""
+
+    @property
+    def name(self) -> str:
+        """The port path or a label, for messages."""
+        ...
+
+    async def read(self) -> bytes:
+        """Return the next bytes received (at least one), waiting if there are none.
+
+        Raises:
+            LinkError: the device vanished, the stream was closed, or an I/O error.
+        """
+        ...
+
+    def write(self, data: bytes) -> None:
+        """Write ``data`` now, as one write; raise :class:`LinkError` if it cannot be sent."""
+        ...
+
+    async def drain(self) -> None:
+        """Wait until everything written has left the process."""
+        ...
+
+    async def close(self) -> None:
+        """Close the stream; pending and later reads raise :class:`LinkError`."""
+        ...
+
+
+class ChunkQueue:
+    """Received chunks and the one reader waiting for them; ends with an error."""
+
+    def __init__(self, name: str) -> None:
+        self._name = name
+        self._chunks: deque[bytes] = deque()
+        self._waiter: asyncio.Future[None] | None = None
+        self._error: LinkError | None = None
+
+    @property
+    def error(self) -> LinkError | None:
+        """The error that ended the stream, if it has ended."""
+        return self._error
+
+    def put(self, data: bytes) -> None:
+        """Append received bytes and wake the reader."""
+        if data and self._error is None:
+            self._chunks.append(data)
+            self._wake()
+
+    def clear(self) -> None:
+        """Discard everything queued (stale input)."""
+        self._chunks.clear()
+
+    def fail(self, error: LinkError) -> None:
+        """End the stream: the reader gets what is queued, then ``error``."""
+        if self._error is None:
+            self._error = error
+        self._wake()
+
+    def _wake(self) -> None:
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
+
+    async def get(self) -> bytes:
+        """Return everything queued (joined), waiting for at least one byte."""
+        while not self._chunks:
+            if self._error is not None:
+                raise self._error
+            self._waiter = asyncio.get_running_loop().create_future()
+            try:
+                await self._waiter
+            finally:
+                self._waiter = None
+        if len(self._chunks) == 1:
+            return self._chunks.popleft()
+        data = b"".join(self._chunks)
+        self._chunks.clear()
+        return data
+
+
+class MemoryStream:
+    """One end of an in-memory stream pair, with fault injection for tests.
+
+    ``write`` delivers to the peer at once unless the peer is stalled (then it is held
+    until :meth:`resume`) or ``drop_writes`` is set (then it is counted and lost).
+    """
+
+    def __init__(self, name: str) -> None:
+        self._name = name
+        self._rx = ChunkQueue(name)
+        self.peer: MemoryStream | None = None
+        self.written: list[bytes] = []
+        self.drop_writes = 0
+        self.dropped = 0
+        self._stalled = False
+        self._held: list[bytes] = []
+        self._closed = False
+
+    @property
+    def name(self) -> str:
+        """The label given at creation."""
+        return self._name
+
+    async def read(self) -> bytes:
+        """Next received bytes."""
+        return await self._rx.get()
+
+    def write(self, data: bytes) -> None:
+        """Deliver ``data`` to the peer (or hold/drop it as the faults say)."""
+        if self._closed:
+            msg = f"{self._name}: write on a closed stream"
+            raise LinkError(msg)
+        self.written.append(bytes(data))
+        if self.drop_writes > 0:
+            self.drop_writes -= 1
+            self.dropped += 1
+            return
+        if self.peer is not None:
+            self.peer.inject(data)
+
+    async def drain(self) -> None:
+        """Nothing to wait for: writes are delivered synchronously."""
+
+    async def close(self) -> None:
+        """Close this end; its reader and the peer's reader see the end."""
+        if self._closed:
+            return
+        self._closed = True
+        self._rx.fail(LinkError(f"{self._name}: stream closed"))
+        if self.peer is not None:
+            self.peer.vanish(errno.EIO)
+
+    def inject(self, data: bytes) -> None:
+        """Make ``data`` arrive on this end as if the peer had sent it."""
+        if self._stalled:
+            self._held.append(bytes(data))
+        else:
+            self._rx.put(bytes(data))
+
+    def stall(self) -> None:
+        """Hold everything arriving at this end until :meth:`resume`."""
+        self._stalled = True
+
+    def resume(self) -> None:
+        """Deliver what was held and stop holding."""
+        self._stalled = False
+        for chunk in self._held:
+            self._rx.put(chunk)
+        self._held.clear()
+
+    def vanish(self, err: int = errno.EIO) -> None:
+        """Make this end's reader fail as a vanished device does."""
+        self._rx.fail(LinkError(f"{self._name}: device vanished ({errno.errorcode[err]})"))
+
+
+def memory_pair(name_a: str = "host", name_b: str = "device") -> tuple[MemoryStream, MemoryStream]:
+    """Two connected in-memory ends: what one writes, the other reads."""
+    a, b = MemoryStream(name_a), MemoryStream(name_b)
+    a.peer, b.peer = b, a
+    return a, b

@@ -1,0 +1,1 @@
+"""The MikroKopter FlightCtrl: frames, messages, raw<->SI units and the async link."""

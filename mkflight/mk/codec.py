@@ -1,0 +1,195 @@
+r"""MikroKopter serial frames: encoding, checksum and an incremental parser (sans-I/O).
+
+Frame layout (``protocols/mk-serial.md`` §2)::
+
+    '#'  addr('a'+n)  cmd  payload(4 chars per 3 bytes, "modified base64")  CRC1 CRC2  '\\r'
+
+The payload length is not transmitted: decoding gives ``3*ceil(n/3)`` bytes and the
+message layer reads its structure from the start. The "CRC" is a byte sum mod 4096
+written as two characters from ``'='``. ``'#'`` and ``'\\r'`` never occur inside a frame,
+which is what lets the parser resynchronise on garbage (§3).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+START = 0x23  # '#'
+END = 0x0D  # '\r'
+OFFSET = 0x3D  # '=': every encoded character is OFFSET + a 6-bit value
+MAX_FRAME_BYTES = 170  # FC 0.84a buffer, '\r' included (§2.4)
+MIN_FRAME_BYTES = 6  # '#' addr cmd CRC1 CRC2 '\r'
+
+ADDR_ANY = 0
+ADDR_FC = 1
+ADDR_NC = 2
+ADDR_MK3MAG = 3
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """One decoded frame: address number, command character and decoded payload bytes."""
+
+    addr: int
+    cmd: str
+    payload: bytes
+
+
+def checksum(data: bytes | bytearray | memoryview) -> bytes:
+    """Return the two checksum characters for ``data`` ('#' through the last payload char)."""
+    crc = sum(data) % 4096
+    return bytes((OFFSET + crc // 64, OFFSET + crc % 64))
+
+
+def encode_payload(payload: bytes) -> bytes:
+    """Encode bytes 3 at a time into 4 characters each, zero-padding the last group (§2.2)."""
+    n = len(payload)
+    if n % 3:
+        payload = payload + bytes(3 - n % 3)
+    out = bytearray()
+    for i in range(0, len(payload), 3):
+        a, b, c = payload[i], payload[i + 1], payload[i + 2]
+        out += bytes(
+            (
+                OFFSET + (a >> 2),
+                OFFSET + (((a & 0x03) << 4) | (b >> 4)),
+                OFFSET + (((b & 0x0F) << 2) | (c >> 6)),
+                OFFSET + (c & 0x3F),
+            )
+        )
+    return bytes(out)
+
+
+def decode_payload(chars: bytes | bytearray | memoryview) -> bytes | None:
+    """Decode payload characters back to bytes; None if the length or a character is invalid.
+
+    The FC does not range-check characters; we do, because a character outside
+    ``'='..'|'`` cannot come from a correct encoder even when the sum happens to match.
+    """
+    if len(chars) % 4:
+        return None
+    out = bytearray()
+    for i in range(0, len(chars), 4):
+        v1 = chars[i] - OFFSET
+        v2 = chars[i + 1] - OFFSET
+        v3 = chars[i + 2] - OFFSET
+        v4 = chars[i + 3] - OFFSET
+        if not (0 <= v1 < 64 and 0 <= v2 < 64 and 0 <= v3 < 64 and 0 <= v4 < 64):
+            return None
+        out.append((v1 << 2) | (v2 >> 4))
+        out.append(((v2 & 0x0F) << 4) | (v3 >> 2))
+        out.append(((v3 & 0x03) << 6) | v4)
+    return bytes(out)
+
+
+def encode_frame(addr: int, cmd: str, payload: bytes = b"") -> bytes:
+    r"""Build a complete frame, checksum and ``'\\r'`` included.
+
+    Raises:
+        ValueError: the address, command or payload cannot form a valid frame.
+    """
+    if not 0 <= addr <= 63:
+        msg = f"address {addr} outside 0..63"
+        raise ValueError(msg)
+    if len(cmd) != 1 or cmd in "#\r" or not 0x20 <= ord(cmd) < 0x7F:
+        msg = f"command {cmd!r} is not one printable character"
+        raise ValueError(msg)
+    head = bytes((START, ord("a") + addr, ord(cmd))) + encode_payload(payload)
+    frame = head + checksum(head) + b"\r"
+    if len(frame) > MAX_FRAME_BYTES:
+        msg = f"frame of {len(frame)} bytes exceeds the FC's {MAX_FRAME_BYTES}-byte buffer"
+        raise ValueError(msg)
+    return frame
+
+
+@dataclass(slots=True)
+class ParserStats:
+    """Counters of everything the parser saw; all of it ends up in ``flight.json``."""
+
+    bytes_in: int = 0
+    frames: int = 0
+    crc_errors: int = 0
+    discarded_bytes: int = 0
+    malformed: int = 0
+    overflows: int = 0
+
+
+class FrameParser:
+    """Incremental client decoder of ``protocols/mk-serial.md`` §3.
+
+    Feed it any chunks; it returns the good frames completed by each chunk. Bytes outside
+    a frame, abandoned frames (a new ``'#'`` inside one), bad-checksum frames, malformed
+    frames and overflowing frames are all counted in :attr:`stats` (``discarded_bytes``
+    counts every byte that did not end up in a good frame). Nothing it is fed can raise.
+    """
+
+    def __init__(self) -> None:
+        self.stats = ParserStats()
+        self._buf = bytearray()  # the frame being collected, starting with '#'; else empty
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
+        """Consume ``data`` and return the complete, valid frames it finished."""
+        stats = self.stats
+        stats.bytes_in += len(data)
+        frames: list[Frame] = []
+        buf = self._buf
+        view = bytes(data)
+        pos = 0
+        n = len(view)
+        while pos < n:
+            if not buf:
+                start = view.find(b"#", pos)
+                if start < 0:
+                    stats.discarded_bytes += n - pos
+                    return frames
+                stats.discarded_bytes += start - pos
+                buf.append(START)
+                pos = start + 1
+                continue
+            # Inside a frame: look for its end or for a new start.
+            room = MAX_FRAME_BYTES - len(buf)
+            stop = min(n, pos + room)
+            end = view.find(b"\r", pos, stop)
+            restart = view.find(b"#", pos, stop if end < 0 else end)
+            if restart >= 0:
+                # A '#' always starts a new frame; the collected bytes are abandoned.
+                stats.discarded_bytes += len(buf) + (restart - pos)
+                buf.clear()
+                pos = restart
+                continue
+            if end >= 0:
+                buf += view[pos : end + 1]
+                pos = end + 1
+                frame = self._complete(buf)
+                buf.clear()
+                if frame is not None:
+                    frames.append(frame)
+                continue
+            buf += view[pos:stop]
+            pos = stop
+            if len(buf) >= MAX_FRAME_BYTES:
+                stats.overflows += 1
+                stats.discarded_bytes += len(buf)
+                buf.clear()
+        return frames
+
+    def _complete(self, raw: bytearray) -> Frame | None:
+        r"""Check and decode one ``'#'...'\\r'`` frame, counting it if it is bad."""
+        stats = self.stats
+        if len(raw) < MIN_FRAME_BYTES:
+            stats.malformed += 1
+            stats.discarded_bytes += len(raw)
+            return None
+        body = memoryview(raw)[:-3]
+        if checksum(body) != raw[-3:-1]:
+            stats.crc_errors += 1
+            stats.discarded_bytes += len(raw)
+            return None
+        payload = decode_payload(raw[3:-3])
+        addr = raw[1] - ord("a")
+        if payload is None or not 0 <= addr <= 63:
+            stats.malformed += 1
+            stats.discarded_bytes += len(raw)
+            return None
+        stats.frames += 1
+        return Frame(addr=addr, cmd=chr(raw[2]), payload=payload)

@@ -1,0 +1,1 @@
+"""The simulator: FlightCtrl emulator (and later URG emulator and vehicle model)."""
