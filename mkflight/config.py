@@ -27,11 +27,7 @@ Gain = Annotated[float, Meta(ge=0, le=1000)]
 Step = Annotated[int, Meta(ge=0, le=1080)]
 
 
-class _Section(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """Base of every config section: immutable and strict."""
-
-
-class MkSigns(_Section):
+class MkSigns(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """MK command sign per axis: MK counts = sign x our angle (SPEC §1: all -1)."""
 
     nick: Sign = -1
@@ -39,15 +35,13 @@ class MkSigns(_Section):
     yaw: Sign = -1
 
 
-class MkConfig(_Section):
+class MkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """The FlightCtrl link and the MK raw<->SI calibration (SPEC §1-2, seed §D eq 7-8)."""
 
     port: str = "/dev/ttyUSB0"
     baudrate: Annotated[int, Meta(ge=1200, le=4_000_000)] = 57600
     debug_interval_10ms: Annotated[int, Meta(ge=1, le=255)] = 5
     resubscribe_s: Annotated[float, Meta(gt=0, le=3.5)] = 2.0
-    stale_s: Annotated[float, Meta(gt=0, le=5)] = 0.2
-    release_after_stale_s: Annotated[float, Meta(gt=0, le=5)] = 1.0
     version_retry_s: Annotated[float, Meta(gt=0, le=5)] = 0.5
     answer_timeout_s: Annotated[float, Meta(gt=0, le=30)] = 2.5
     min_frame_gap_s: Annotated[float, Meta(ge=0, le=0.05)] = 0.003
@@ -67,7 +61,7 @@ class MkConfig(_Section):
     g_mps2: Annotated[float, Meta(ge=9.7, le=9.9)] = 9.81
 
 
-class LaserConfig(_Section):
+class LaserConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """The Hokuyo URG and the laser hat (SPEC §2-3, seed §K eq 26)."""
 
     port: str = "/dev/ttyACM0"
@@ -79,7 +73,7 @@ class LaserConfig(_Section):
     delay_s: NonNegFloat = 0.1
 
 
-class EstimationConfig(_Section):
+class EstimationConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """Complementary filter (seed §H eq 15-17) and latency compensation (eq 18-20)."""
 
     filter_period_s: Annotated[float, Meta(gt=0, le=1)] = 0.05
@@ -89,7 +83,7 @@ class EstimationConfig(_Section):
     imu_history_s: Annotated[float, Meta(gt=0, le=5)] = 0.5
 
 
-class ControlConfig(_Section):
+class ControlConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """Position, velocity, yaw and altitude loops and their limits (SPEC §4, seed §C, J, K)."""
 
     kp_xy: Gain = 1.0
@@ -121,7 +115,7 @@ class ControlConfig(_Section):
     land_detect_s: NonNegFloat = 1.0
 
 
-class SafetyConfig(_Section):
+class SafetyConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """Failsafe thresholds (SPEC §5)."""
 
     box_m: Annotated[float, Meta(gt=0, le=50)] = 2.0
@@ -136,13 +130,13 @@ class SafetyConfig(_Section):
     nonfinite_land_steps: Annotated[int, Meta(ge=1, le=100)] = 3
 
 
-class LoggingConfig(_Section):
+class LoggingConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """Where flight folders go (SPEC §6)."""
 
     dir: str = "flights"
 
 
-class SimFcConfig(_Section):
+class SimFcConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """The FlightCtrl emulator's settings (``mk-serial.md`` §5-7)."""
 
     version: str = "0.84a"
@@ -153,14 +147,14 @@ class SimFcConfig(_Section):
     battery_v: Annotated[float, Meta(ge=0, le=60)] = 12.4
 
 
-class SimConfig(_Section):
+class SimConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """The simulator (SPEC §8)."""
 
     seed: Annotated[int, Meta(ge=0)] = 1
     fc: SimFcConfig = msgspec.field(default_factory=SimFcConfig)
 
 
-class Config(_Section):
+class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """The whole configuration (``config.yaml``)."""
 
     mk: MkConfig = msgspec.field(default_factory=MkConfig)
@@ -190,21 +184,21 @@ def _dotted(msgspec_path: str) -> str:
     return msgspec_path.removeprefix("$.").removeprefix("$")
 
 
-def _cross_checks(cfg: Config) -> None:
+def _cross_checks(cfg: Config, source: str) -> None:
     """Rules that span fields, which a per-field range cannot express."""
     for key in ("scan_steps", "hat_steps"):
         lo, hi = getattr(cfg.laser, key)
         if lo > hi:
-            msg = f"laser.{key}: first step {lo} is after last step {hi}"
+            msg = f"{source}: laser.{key}: first step {lo} is after last step {hi}"
             raise ConfigError(msg)
     if cfg.safety.land_voltage_v > cfg.safety.warn_voltage_v:
-        msg = "safety.land_voltage_v: must not exceed safety.warn_voltage_v"
+        msg = f"{source}: safety.land_voltage_v: must not exceed safety.warn_voltage_v"
         raise ConfigError(msg)
     if cfg.control.takeoff_height_m > cfg.safety.max_height_m:
-        msg = "control.takeoff_height_m: above safety.max_height_m"
+        msg = f"{source}: control.takeoff_height_m: above safety.max_height_m"
         raise ConfigError(msg)
     if cfg.mk.reopen_backoff_s > cfg.mk.reopen_backoff_max_s:
-        msg = "mk.reopen_backoff_s: must not exceed mk.reopen_backoff_max_s"
+        msg = f"{source}: mk.reopen_backoff_s: must not exceed mk.reopen_backoff_max_s"
         raise ConfigError(msg)
 
 
@@ -219,18 +213,19 @@ def config_from_dict(data: Any, source: str = "config") -> Config:
     try:
         cfg = msgspec.convert(data, type=Config, strict=True)
     except msgspec.ValidationError as err:
-        text = str(err)
-        where = ""
-        if " - at `" in text:
-            text, _, at = text.rpartition(" - at `")
-            where = _dotted(at.rstrip("`"))
+        text, where = str(err), ""
+        located = re.fullmatch(r"(.*) - at `(key` in `)?(\$[^`]*)`", text, re.DOTALL)
+        if located:
+            text, where = located.group(1), _dotted(located.group(3))
+            if located.group(2):
+                text = f"keys must be names: {text}"
         unknown = re.fullmatch(r"Object contains unknown field `(.+)`", text)
         if unknown:
             where = f"{where}.{unknown.group(1)}" if where else unknown.group(1)
             text = "unknown key"
         msg = f"{source}: {where}: {text}" if where else f"{source}: {text}"
         raise ConfigError(msg) from err
-    _cross_checks(cfg)
+    _cross_checks(cfg, source)
     return cfg
 
 
@@ -281,6 +276,9 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
             text = Path(path).read_text(encoding="utf-8")
         except OSError as err:
             msg = f"{source}: cannot read config file: {err.strerror or err}"
+            raise ConfigError(msg) from err
+        except UnicodeDecodeError as err:
+            msg = f"{source}: not UTF-8 text (byte {err.start}): {err.reason}"
             raise ConfigError(msg) from err
         try:
             data = yaml.safe_load(text)

@@ -17,6 +17,8 @@ from typing import Any
 from mkflight.errors import LinkError, PortNotFoundError
 from mkflight.io.stream import ChunkQueue
 
+READ_CHUNK_BYTES = 4096
+
 
 class _SerialProtocol(asyncio.Protocol):
     """Feeds received chunks into a :class:`ChunkQueue`; turns a lost port into LinkError."""
@@ -110,6 +112,10 @@ async def open_serial(path: str, baudrate: int) -> SerialStream:
     except (OSError, serialx.SerialException) as err:
         msg = f"cannot open {path!r}: {err}"
         raise LinkError(msg) from err
+    # serialx reads up to 256 KiB per wake-up: a buffer that size is mmap'ed and freed on
+    # every read (~0.1 ms). A 57600 Bd link delivers < 6 bytes per ms; 4 KiB is plenty.
+    if hasattr(transport, "max_size"):
+        transport.max_size = READ_CHUNK_BYTES
     serial = transport.get_extra_info("serial")
     if serial is not None:
         # Bytes the device sent before we opened it are stale: timestamps would lie.
