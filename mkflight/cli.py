@@ -1,0 +1,137 @@
+"""The ``mkflight`` command line: argparse only; each subcommand calls a ``cmd_*() -> int``.
+
+Exit codes (SPEC §7): 0 success, 1 a runtime failure, 2 bad usage or configuration.
+Errors print as one ``error:`` line on stderr, never a traceback (``--debug`` shows it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import traceback
+from collections.abc import Sequence
+from typing import NoReturn
+
+from mkflight import __version__
+from mkflight.errors import ConfigError, MkflightError, PortNotFoundError
+
+EXIT_OK = 0
+EXIT_RUNTIME = 1
+EXIT_USAGE = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """An ArgumentParser whose usage errors are one ``error:`` line and exit 2."""
+
+    def error(self, message: str) -> NoReturn:
+        print(f"error: {message} (see '{self.prog} --help')", file=sys.stderr)
+        raise SystemExit(EXIT_USAGE)
+
+
+def _count(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        msg = f"must be >= 0, got {value}"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _config_options() -> _Parser:
+    """``--config`` and ``--set``, shared by every command that uses the configuration."""
+    p = _Parser(add_help=False)
+    p.add_argument("--config", metavar="FILE", help="YAML configuration (default: built-in)")
+    p.add_argument(
+        "--set",
+        metavar="KEY=VALUE",
+        action="append",
+        default=[],
+        dest="overrides",
+        help="override one key for this run, e.g. --set control.kp_xy=1.2 (repeatable)",
+    )
+    return p
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The whole command tree."""
+    parser = _Parser(
+        prog="mkflight",
+        description="Onboard flight software for a laser-guided MikroKopter quadrotor.",
+    )
+    parser.add_argument("--version", action="version", version=f"mkflight {__version__}")
+    parser.add_argument(
+        "--log-level", choices=("debug", "info", "warning"), default="info", help="events shown"
+    )
+    parser.add_argument(
+        "--log-json", action="store_true", help="events as JSON lines even on a terminal"
+    )
+    parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    commands.required = True
+    config_opts = _config_options()
+
+    mk = commands.add_parser("mk", help="the MikroKopter FlightCtrl link")
+    mk_commands = mk.add_subparsers(dest="mk_command", metavar="COMMAND", parser_class=_Parser)
+    mk_commands.required = True
+    info = mk_commands.add_parser(
+        "info",
+        parents=[config_opts],
+        help="print the FC version and DebugOut samples in SI units",
+        description="Connect to a FlightCtrl, print its version, then N DebugOut samples "
+        "converted to SI units (SPEC §1). Takes no control: on exit it sends Config = 0.",
+    )
+    where = info.add_mutually_exclusive_group(required=True)
+    where.add_argument("--port", metavar="DEV", help="serial device of the FC, e.g. /dev/ttyUSB0")
+    where.add_argument("--sim", action="store_true", help="use the built-in FC emulator on a pty")
+    info.add_argument(
+        "--count", type=_count, default=10, metavar="N", help="samples to print (0: until Ctrl-C)"
+    )
+    info.add_argument("--json", action="store_true", help="one JSON object per sample and line")
+    info.set_defaults(func=_run_mk_info)
+    return parser
+
+
+def _run_mk_info(args: argparse.Namespace) -> int:
+    from mkflight.commands.mk_info import cmd_mk_info
+
+    return cmd_mk_info(
+        port=args.port,
+        sim=args.sim,
+        count=args.count,
+        as_json=args.json,
+        config_path=args.config,
+        overrides=args.overrides,
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the CLI; return the exit code."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exit_:
+        return exit_.code if isinstance(exit_.code, int) else EXIT_USAGE
+    from mkflight.eventlog import configure_events
+
+    configure_events(level=args.log_level, json_lines=True if args.log_json else None)
+    try:
+        code: int = args.func(args)
+    except (ConfigError, PortNotFoundError) as err:
+        return _fail(err, EXIT_USAGE, args.debug)
+    except MkflightError as err:
+        return _fail(err, EXIT_RUNTIME, args.debug)
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        return 130
+    except Exception as err:  # a bug: still one line, the traceback on request
+        if args.debug:
+            traceback.print_exc()
+        print(f"error: internal error: {err!r} (run with --debug for details)", file=sys.stderr)
+        return EXIT_RUNTIME
+    return code
+
+
+def _fail(err: BaseException, code: int, debug: bool) -> int:
+    if debug:
+        traceback.print_exc()
+    print(f"error: {err}", file=sys.stderr)
+    return code
