@@ -1,0 +1,299 @@
+"""MkLink over the in-memory byte pair, against a small scripted FC responder."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import AsyncIterator, Callable
+
+import pytest
+
+from mkflight.clock import ManualClock
+from mkflight.errors import CommandRangeError, LinkError
+from mkflight.io.stream import MemoryStream, memory_pair
+from mkflight.mk.codec import Frame, FrameParser, encode_frame
+from mkflight.mk.link import LinkSettings, MkLink
+from mkflight.mk.messages import (
+    Confirm,
+    DebugOut,
+    ExternControl,
+    VersionInfo,
+)
+from mkflight.mk.units import DEFAULT_CALIBRATION
+
+MK08 = DebugOut.from_values(
+    {0: -12, 1: 31, 2: -13, 3: 33, 4: -3, 5: 14, 6: -2, 7: 480, 9: 118, 10: 200, 11: 271}
+)
+FAST = LinkSettings(
+    answer_timeout_s=0.3,
+    version_retry_s=0.1,
+    stale_s=0.05,
+    release_interval_s=0.005,
+    min_frame_gap_s=0.003,
+)
+
+
+class FakeFc:
+    """Answers 'v' with 0.84a, 'b' with confirms, 'd' with one DebugOut; records frames."""
+
+    def __init__(self, device: MemoryStream, *, answer: bool = True) -> None:
+        self.device = device
+        self.answer = answer
+        self.frames: list[Frame] = []
+        self.parser = FrameParser()
+        self.received = asyncio.Event()
+
+    async def run(self) -> None:
+        with contextlib.suppress(LinkError):
+            while True:
+                data = await self.device.read()
+                for frame in self.parser.feed(data):
+                    self.frames.append(frame)
+                    self.received.set()
+                    if self.answer:
+                        self.respond(frame)
+
+    def respond(self, frame: Frame) -> None:
+        if frame.cmd == "v":
+            self.device.write(VersionInfo(0, 84, 11, 0, 0).encode())
+        elif frame.cmd == "d" and frame.payload[0] > 0:
+            self.device.write(MK08.encode())
+        elif frame.cmd == "b" and frame.payload[9]:
+            self.device.write(Confirm(frame.payload[9]).encode())
+
+    def commands(self) -> list[ExternControl]:
+        return [ExternControl.decode(f) for f in self.frames if f.cmd == "b"]
+
+    def count(self, cmd: str) -> int:
+        return sum(1 for f in self.frames if f.cmd == cmd)
+
+
+@pytest.fixture
+async def pair() -> AsyncIterator[tuple[MkLink, FakeFc]]:
+    host, device = memory_pair("host", "fc")
+    fc = FakeFc(device)
+    task = asyncio.create_task(fc.run())
+    link = MkLink(host, FAST, DEFAULT_CALIBRATION)
+    yield link, fc
+    await link.close(release=False)
+    task.cancel()
+    with contextlib.suppress(asyncio.CancelledError):
+        await task
+
+
+async def test_connect_reads_the_version(pair: tuple[MkLink, FakeFc]) -> None:
+    link, fc = pair
+    version = await link.connect()
+    assert version.text == "0.84a"
+    assert fc.frames[0] == Frame(1, "v", b"")
+
+
+async def test_samples_are_converted_to_si_and_foreign_frames_dropped(
+    pair: tuple[MkLink, FakeFc],
+) -> None:
+    link, fc = pair
+    await link.connect()
+    fc.device.write(b"#dk^\\yj======A=Nx\r")  # MK-19, the FC -> MK3MAG frame
+    link.subscribe()
+    sample = await link.next_sample(timeout_s=1.0)
+    assert sample.pitch_rad == pytest.approx(0.020944, abs=1e-6)
+    assert sample.roll_rad == pytest.approx(-0.054105, abs=1e-6)
+    assert sample.acc_z_mps2 == pytest.approx(-9.670968, abs=1e-6)
+    assert sample.yaw_rad == pytest.approx(-1.553343, abs=1e-6)
+    assert sample.battery_v == pytest.approx(11.8)
+    assert sample.gas_counts == 120
+    assert link.stats.foreign_frames == 1
+    assert link.stats.parser.crc_errors == 0
+
+
+async def test_garbage_and_crc_errors_are_counted_not_fatal(
+    pair: tuple[MkLink, FakeFc],
+) -> None:
+    link, fc = pair
+    link.start()
+    fc.device.write(b"\x00\xffjunk" + b"#bV=BMH============PI\r")  # MK-20: bad CRC
+    version = await link.connect()
+    assert version.text == "0.84a"
+    assert link.stats.parser.crc_errors == 1
+    assert link.stats.parser.discarded_bytes >= 6 + 22
+
+
+async def test_no_answer_is_a_clear_error_within_the_timeout() -> None:
+    host, device = memory_pair("/dev/ttyFAKE", "fc")
+    fc = FakeFc(device, answer=False)
+    task = asyncio.create_task(fc.run())
+    link = MkLink(host, FAST, DEFAULT_CALIBRATION)
+    loop = asyncio.get_running_loop()
+    start = loop.time()
+    with pytest.raises(LinkError, match=r"no FlightCtrl answered on /dev/ttyFAKE"):
+        await link.connect()
+    assert loop.time() - start < FAST.answer_timeout_s + 0.2
+    assert fc.count("v") >= 2  # retried
+    await link.close(release=False)
+    task.cancel()
+
+
+async def test_extern_control_is_numbered_confirmed_and_range_checked(
+    pair: tuple[MkLink, FakeFc],
+) -> None:
+    link, fc = pair
+    await link.connect()
+    first = link.send_extern_control(ExternControl(nick=-20, roll=15, gas=100, config=1))
+    assert first == 1
+    await asyncio.wait_for(_until(lambda: fc.count("b") == 1, fc), 1.0)
+    cmd = fc.commands()[0]
+    assert (cmd.nick, cmd.roll, cmd.gas, cmd.frame, cmd.config) == (-20, 15, 100, 1, 1)
+    with pytest.raises(CommandRangeError, match="gas"):
+        link.send_extern_control(ExternControl(gas=-1))
+    assert link.stats.commands_sent == 1  # the bad one was never written
+    assert await link.wait_confirm(first, timeout_s=1.0)
+    assert link.stats.confirms == 1
+    assert link.stats.rtt_ns[0] >= 0
+
+
+async def test_frame_numbers_roll_over_skipping_zero(pair: tuple[MkLink, FakeFc]) -> None:
+    link, _ = pair
+    numbers = [link.send_extern_control(ExternControl()) for _ in range(256)]
+    assert numbers[254] == 255
+    assert numbers[255] == 1
+    assert 0 not in numbers
+
+
+async def test_frames_are_spaced_by_the_minimum_gap(pair: tuple[MkLink, FakeFc]) -> None:
+    link, fc = pair
+    link.subscribe()
+    link.send_extern_control(ExternControl())  # within 3 ms of the 'd': must wait
+    assert link.stats.delayed_writes == 1
+    assert fc.count("b") == 0
+    link.send_extern_control(ExternControl(nick=5))  # supersedes the queued command
+    await asyncio.wait_for(_until(lambda: fc.count("b") == 1, fc), 1.0)
+    assert fc.commands()[0].nick == 5
+    assert await link.wait_confirm(2, timeout_s=1.0)
+    assert link._pending_confirms == {}  # the superseded frame is not waited for
+
+
+async def test_close_releases_control_with_config_zero(pair: tuple[MkLink, FakeFc]) -> None:
+    link, fc = pair
+    await link.connect()
+    link.send_extern_control(ExternControl(nick=10, gas=120, config=1))
+    await asyncio.wait_for(_until(lambda: fc.count("b") == 1, fc), 1.0)
+    await link.close()
+    released = fc.commands()[1:]
+    assert len(released) == FAST.release_frames
+    for cmd in released:
+        assert (cmd.nick, cmd.roll, cmd.yaw, cmd.gas, cmd.config) == (0, 0, 0, 0, 0)
+    assert fc.frames[-1] == Frame(1, "d", b"\x00\x00\x00")  # stream stopped last
+
+
+async def test_vanished_device_is_reported(pair: tuple[MkLink, FakeFc]) -> None:
+    link, fc = pair
+    await link.connect()
+    link.subscribe()
+    await link.next_sample(timeout_s=1.0)
+    await fc.device.close()  # unplugged: the host end fails with EIO
+    with pytest.raises(LinkError, match="vanished"):
+        await link.next_sample(timeout_s=1.0)
+    with pytest.raises(LinkError):
+        link.send_extern_control(ExternControl())
+
+
+async def test_stale_data_resubscribes_and_asks_the_version_again() -> None:
+    host, device = memory_pair("host", "fc")
+    fc = FakeFc(device, answer=False)
+    task = asyncio.create_task(fc.run())
+    link = MkLink(host, FAST, DEFAULT_CALIBRATION)
+    link.start()
+    with pytest.raises(LinkError, match=r"no DebugOut from host for 0\.2 s"):
+        await link.next_sample(timeout_s=0.2)
+    await asyncio.wait_for(_until(lambda: fc.count("v") >= 1, fc), 1.0)
+    assert fc.count("d") >= 3  # the first one, then at least every 50 ms of staleness
+    assert link.stats.stale_events == 1
+    await link.close(release=False)
+    task.cancel()
+
+
+async def test_renewal_comes_from_the_consumer_only() -> None:
+    """A stalled consumer stops refreshing the FC's hold (SPEC §2)."""
+    clock = ManualClock()
+    host, device = memory_pair("host", "fc")
+    settings = LinkSettings(resubscribe_s=2.0, stale_s=100.0)  # no staleness here
+    link = MkLink(host, settings, DEFAULT_CALIBRATION, clock)
+    link.start()
+    link.subscribe()
+    frame = MK08.encode()
+
+    def d_count() -> int:
+        return sum(1 for w in host.written if w[2:3] == b"d")
+
+    for _ in range(3):
+        clock.advance(1_000_000_000)
+        device.write(frame)
+        await link.next_sample(timeout_s=1.0)
+    assert d_count() == 2  # the initial one and one renewal after 2 s
+    clock.advance(10_000_000_000)  # the consumer stalls for 10 s: nobody renews
+    assert d_count() == 2
+    device.write(frame)
+    await link.next_sample(timeout_s=1.0)
+    assert d_count() == 3
+    await link.close(release=False)
+
+
+async def test_reopen_with_backoff_after_the_port_vanished() -> None:
+    host, device = memory_pair("host", "fc")
+    fc = FakeFc(device)
+    tasks = [asyncio.create_task(fc.run())]
+    attempts = 0
+
+    async def opener() -> MemoryStream:
+        nonlocal attempts
+        attempts += 1
+        if attempts < 3:
+            raise LinkError("host: not there yet")
+        new_host, new_device = memory_pair("host", "fc")
+        fc.device = new_device
+        tasks.append(asyncio.create_task(fc.run()))
+        return new_host
+
+    settings = LinkSettings(reopen_backoff_s=0.01, reopen_backoff_max_s=0.02)
+    link = MkLink(host, settings, DEFAULT_CALIBRATION, reopen=opener)
+    await link.connect()
+    await device.close()
+    with pytest.raises(LinkError):
+        await link.next_sample(timeout_s=1.0)
+    version = await link.reopen(max_wait_s=2.0)
+    assert version.text == "0.84a"
+    assert attempts == 3
+    assert link.stats.reopens == 1
+    sample = await link.next_sample(timeout_s=1.0)  # reopen re-subscribed
+    assert sample.battery_v == pytest.approx(11.8)
+    await link.close()
+    for t in tasks:
+        t.cancel()
+
+
+async def test_reopen_gives_up_with_a_clear_error() -> None:
+    host, _ = memory_pair("/dev/ttyGONE", "fc")
+
+    async def opener() -> MemoryStream:
+        raise LinkError("/dev/ttyGONE: no such device")
+
+    settings = LinkSettings(reopen_backoff_s=0.01, reopen_backoff_max_s=0.02)
+    link = MkLink(host, settings, DEFAULT_CALIBRATION, reopen=opener)
+    with pytest.raises(LinkError, match=r"/dev/ttyGONE: did not come back within 0.05 s"):
+        await link.reopen(max_wait_s=0.05)
+
+
+async def test_tap_sees_every_byte_both_ways(pair: tuple[MkLink, FakeFc]) -> None:
+    link, _ = pair
+    seen: list[tuple[str, bytes]] = []
+    link._tap = lambda d, t, b: seen.append((d, b))
+    await link.connect()
+    assert ("w", encode_frame(1, "v")) in seen
+    assert ("r", VersionInfo(0, 84, 11, 0, 0).encode()) in seen
+
+
+async def _until(predicate: Callable[[], bool], fc: FakeFc) -> None:
+    """Wait until ``predicate`` holds, re-checking each time the fake FC receives a frame."""
+    while not predicate():
+        fc.received.clear()
+        await fc.received.wait()
