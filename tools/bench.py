@@ -1,0 +1,259 @@
+"""mkflight benchmarks (SPEC §9): medians and ratios against a baseline measured in the same run.
+
+Run: ``pip install -e '.[bench]' && python tools/bench.py`` (``--json`` for machine output).
+
+* ``codec``: MK frames encoded and decoded per second (ExternControl encode with its range
+  checks; DebugOut streams through the incremental parser and the SI conversion).
+* ``latency``: DebugOut arrival -> ExternControl on the wire, over a real pty pair. A
+  thread poses as the FlightCtrl on the pty's master end: it writes a DebugOut frame and
+  timestamps the moment the answering ExternControl frame can be read back. The host side
+  is mkflight's link (serialx, eager writes) and, as the baseline, the same loop on
+  pyserial-asyncio (whose transport queues every write for the next event-loop turn).
+  Both ends use ``time.perf_counter_ns`` (CLOCK_MONOTONIC), one clock for both processes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import multiprocessing
+import os
+import platform
+import pty
+import statistics
+import time
+import tty
+from collections.abc import Callable, Coroutine
+from typing import Any
+
+from mkflight.mk.codec import FrameParser
+from mkflight.mk.link import LinkSettings, MkLink
+from mkflight.mk.messages import DebugOut, ExternControl
+from mkflight.mk.units import DEFAULT_CALIBRATION, imu_from_debug
+
+DEBUG = DebugOut.from_values({0: -12, 1: 31, 2: -13, 3: 33, 6: -2, 7: 480, 9: 118, 11: 271})
+# Samples not counted at the start of each run: first calls, and the link's 3 ms gap after
+# its initial 'd' (a real FC answers 'd' with a 16 ms DebugOut, so that gap never binds).
+WARMUP = 3
+COMMAND = ExternControl(nick=-20, roll=15, yaw=3, gas=100, frame=7, config=1)
+
+
+def percentile(values: list[float], q: float) -> float:
+    """The q-th percentile (0..100) by nearest rank."""
+    ordered = sorted(values)
+    index = min(len(ordered) - 1, max(0, round(q / 100 * (len(ordered) - 1))))
+    return ordered[index]
+
+
+# ----- codec throughput ------------------------------------------------------------------
+
+
+def bench_codec(seconds: float = 1.0) -> dict[str, float]:
+    """Frames per second for the pure codec paths (median of 5 timed batches)."""
+
+    def rate(fn: Callable[[], int]) -> float:
+        rates = []
+        for _ in range(5):
+            t0 = time.perf_counter()
+            n = fn()
+            rates.append(n / (time.perf_counter() - t0))
+        return statistics.median(rates)
+
+    batch = max(1000, int(20000 * seconds))
+
+    def encode_commands() -> int:
+        for _ in range(batch):
+            COMMAND.encode()
+        return batch
+
+    stream = DEBUG.encode() * 200
+
+    def decode_debug() -> int:
+        parser = FrameParser()
+        n = 0
+        for _ in range(max(1, batch // 200)):
+            for frame in parser.feed(stream):
+                imu_from_debug(DebugOut.decode(frame), 0, DEFAULT_CALIBRATION)
+                n += 1
+        return n
+
+    return {
+        "extern_control_encode_per_s": rate(encode_commands),
+        "debugout_decode_to_si_per_s": rate(decode_debug),
+    }
+
+
+# ----- latency over a pty ------------------------------------------------------------------
+
+
+def fc_process(master: int, samples: int, period_s: float, ready: Any, out: Any) -> None:
+    """Poses as the FC on a pty master: DebugOut out, time until the ExternControl is back.
+
+    It runs in its own process so that the host's interpreter lock cannot delay the
+    moment it sees the reply (a thread would measure the GIL's 5 ms switch interval).
+    """
+    frame = DEBUG.encode()
+    parser = FrameParser()
+    latencies_ms: list[float] = []
+    ready.wait()
+    for _ in range(samples):
+        t0 = time.perf_counter_ns()
+        os.write(master, frame)
+        got = False
+        t1 = t0
+        while not got:
+            data = os.read(master, 4096)
+            t1 = time.perf_counter_ns()
+            got = any(f.cmd == "b" for f in parser.feed(data))
+        latencies_ms.append((t1 - t0) / 1e6)
+        time.sleep(period_s)
+    out.send(latencies_ms)
+
+
+Host = Callable[[str, Any, int], Coroutine[Any, Any, None]]
+
+
+async def busy_task(chunk_ms: float, every_ms: float) -> None:
+    """Other work on the same event loop (a scan match, log formatting): CPU in chunks."""
+    while True:
+        t_end = time.perf_counter() + chunk_ms / 1000
+        while time.perf_counter() < t_end:
+            pass
+        await asyncio.sleep(every_ms / 1000)
+
+
+def with_load(host: Host, chunk_ms: float = 2.0, every_ms: float = 5.0) -> Host:
+    """Run ``host`` with :func:`busy_task` beside it on the loop."""
+
+    async def loaded(path: str, ready: Any, samples: int) -> None:
+        busy = asyncio.create_task(busy_task(chunk_ms, every_ms))
+        try:
+            await host(path, ready, samples)
+        finally:
+            busy.cancel()
+
+    return loaded
+
+
+async def host_mkflight(path: str, ready: Any, samples: int) -> None:
+    """mkflight's path: serialx stream, MkLink, eager ExternControl write per sample."""
+    from mkflight.io.serial import open_serial
+
+    stream = await open_serial(path, 57600)
+    link = MkLink(stream, LinkSettings(), DEFAULT_CALIBRATION)
+    link.start()
+    ready.set()
+    for _ in range(samples):
+        await link.next_sample(timeout_s=5.0)
+        link.send_extern_control(COMMAND)
+    await link.close(release=False)
+
+
+async def host_pyserial_asyncio(path: str, ready: Any, samples: int) -> None:
+    """The baseline: pyserial-asyncio streams, same parser, writer.write per sample."""
+    import serial_asyncio
+
+    reader, writer = await serial_asyncio.open_serial_connection(url=path, baudrate=57600)
+    parser = FrameParser()
+    data = COMMAND.encode()
+    ready.set()
+    answered = 0
+    while answered < samples:
+        chunk = await reader.read(4096)
+        for frame in parser.feed(chunk):
+            if frame.cmd == "D":
+                imu_from_debug(DebugOut.decode(frame), 0, DEFAULT_CALIBRATION)
+                writer.write(data)
+                answered += 1
+    writer.close()
+
+
+def bench_latency(host: Host, samples: int, period_s: float) -> list[float]:
+    """Run one host implementation against the FC process; return latencies in ms."""
+    ctx = multiprocessing.get_context("fork")
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    path = os.ttyname(slave)
+    ready = ctx.Event()
+    receive, send = ctx.Pipe(duplex=False)
+    fc = ctx.Process(target=fc_process, args=(master, samples + WARMUP, period_s, ready, send))
+    fc.start()
+    try:
+        asyncio.run(host(path, ready, samples + WARMUP))
+        latencies: list[float] = receive.recv()[WARMUP:]
+        fc.join(timeout=10)
+    finally:
+        os.close(master)
+        os.close(slave)
+    return latencies
+
+
+def summarize(values: list[float]) -> dict[str, float]:
+    """Median, p99 and max."""
+    return {
+        "median": statistics.median(values),
+        "p99": percentile(values, 99),
+        "max": max(values),
+        "n": float(len(values)),
+    }
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", choices=("codec", "latency"), help="run one group")
+    parser.add_argument("--samples", type=int, default=400, help="latency samples per variant")
+    parser.add_argument("--rounds", type=int, default=3, help="alternating rounds per variant")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    args = parser.parse_args()
+
+    result: dict[str, Any] = {
+        "machine": f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} cpus",
+        "python": platform.python_version(),
+    }
+    if args.only in (None, "codec"):
+        result["codec"] = bench_codec()
+    if args.only in (None, "latency"):
+        variants: dict[str, Host] = {
+            "mkflight_serialx": host_mkflight,
+            "pyserial_asyncio": host_pyserial_asyncio,
+            "mkflight_serialx+load": with_load(host_mkflight),
+            "pyserial_asyncio+load": with_load(host_pyserial_asyncio),
+        }
+        runs: dict[str, list[float]] = {name: [] for name in variants}
+        per_round = max(1, args.samples // args.rounds)
+        for _ in range(args.rounds):  # alternate A B A B: drift hits both alike
+            for name, host in variants.items():
+                runs[name] += bench_latency(host, per_round, period_s=0.01)
+        stats = {name: summarize(v) for name, v in runs.items()}
+        result["latency_ms"] = stats
+        result["latency_ratio_ours_over_baseline"] = {
+            suffix or "idle": {
+                q: stats["mkflight_serialx" + suffix][q] / stats["pyserial_asyncio" + suffix][q]
+                for q in ("median", "p99")
+            }
+            for suffix in ("", "+load")
+        }
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    print(f"machine: {result['machine']}, Python {result['python']}")
+    if "codec" in result:
+        for key, value in result["codec"].items():
+            print(f"  {key:34s} {value:12,.0f}")
+    if "latency_ms" in result:
+        print("DebugOut arrival -> ExternControl on the wire, ms (pty pair):")
+        print(f"  {'variant':24s} {'median':>8s} {'p99':>8s} {'max':>8s} {'n':>6s}")
+        for name, s in result["latency_ms"].items():
+            print(f"  {name:24s} {s['median']:8.3f} {s['p99']:8.3f} {s['max']:8.3f} {s['n']:6.0f}")
+        print("  (+load: another task on the loop burns 2 ms of CPU every 5 ms)")
+        for case, r in result["latency_ratio_ours_over_baseline"].items():
+            print(
+                f"  ratio mkflight/pyserial-asyncio ({case}): "
+                f"median {r['median']:.2f}, p99 {r['p99']:.2f}"
+            )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
