@@ -169,8 +169,12 @@ async def host_pyserial_asyncio(path: str, ready: Any, samples: int) -> None:
     writer.close()
 
 
-def bench_latency(host: Host, samples: int, period_s: float) -> list[float]:
-    """Run one host implementation against the FC process; return latencies in ms."""
+def bench_latency(host: Host, samples: int, period_s: float) -> tuple[list[float], float]:
+    """Run one host against the FC process: latencies in ms, host CPU us per sample.
+
+    The CPU figure is the host process's user+system time over the whole run (event loop,
+    parsing, conversion, encoding, the write; open and close included) per sample.
+    """
     ctx = multiprocessing.get_context("fork")
     master, slave = pty.openpty()
     tty.setraw(slave)
@@ -180,13 +184,15 @@ def bench_latency(host: Host, samples: int, period_s: float) -> list[float]:
     fc = ctx.Process(target=fc_process, args=(master, samples + WARMUP, period_s, ready, send))
     fc.start()
     try:
+        cpu0 = time.process_time()
         asyncio.run(host(path, ready, samples + WARMUP))
+        cpu_us_per_sample = (time.process_time() - cpu0) / (samples + WARMUP) * 1e6
         latencies: list[float] = receive.recv()[WARMUP:]
         fc.join(timeout=10)
     finally:
         os.close(master)
         os.close(slave)
-    return latencies
+    return latencies, cpu_us_per_sample
 
 
 def summarize(values: list[float]) -> dict[str, float]:
@@ -221,11 +227,16 @@ def main() -> int:
             "pyserial_asyncio+load": with_load(host_pyserial_asyncio),
         }
         runs: dict[str, list[float]] = {name: [] for name in variants}
+        cpu: dict[str, list[float]] = {name: [] for name in variants}
         per_round = max(1, args.samples // args.rounds)
         for _ in range(args.rounds):  # alternate A B A B: drift hits both alike
             for name, host in variants.items():
-                runs[name] += bench_latency(host, per_round, period_s=0.01)
+                latencies, cpu_us = bench_latency(host, per_round, period_s=0.01)
+                runs[name] += latencies
+                cpu[name].append(cpu_us)
         stats = {name: summarize(v) for name, v in runs.items()}
+        for name in variants:
+            stats[name]["cpu_us_per_sample"] = statistics.median(cpu[name])
         result["latency_ms"] = stats
         result["latency_ratio_ours_over_baseline"] = {
             suffix or "idle": {
@@ -243,9 +254,13 @@ def main() -> int:
             print(f"  {key:34s} {value:12,.0f}")
     if "latency_ms" in result:
         print("DebugOut arrival -> ExternControl on the wire, ms (pty pair):")
-        print(f"  {'variant':24s} {'median':>8s} {'p99':>8s} {'max':>8s} {'n':>6s}")
+        head = f"  {'variant':24s} {'median':>8s} {'p99':>8s} {'max':>8s} {'n':>6s}"
+        print(head + f" {'host CPU us/sample':>19s}")
         for name, s in result["latency_ms"].items():
-            print(f"  {name:24s} {s['median']:8.3f} {s['p99']:8.3f} {s['max']:8.3f} {s['n']:6.0f}")
+            print(
+                f"  {name:24s} {s['median']:8.3f} {s['p99']:8.3f} {s['max']:8.3f} {s['n']:6.0f}"
+                f" {s['cpu_us_per_sample']:19.0f}"
+            )
         print("  (+load: another task on the loop burns 2 ms of CPU every 5 ms)")
         for case, r in result["latency_ratio_ours_over_baseline"].items():
             print(

@@ -54,6 +54,25 @@ async def run_cli(*args: str, timeout_s: float = 20.0) -> tuple[int, str, str, f
     return proc.returncode, out.decode(), err.decode(), loop.time() - start
 
 
+async def start_streaming(path: str, count: int) -> asyncio.subprocess.Process:
+    """Start ``mk info --port PATH --count N --json`` and return once its first line is out."""
+    proc = await asyncio.create_subprocess_exec(
+        *MKFLIGHT,
+        "mk",
+        "info",
+        "--port",
+        path,
+        "--count",
+        str(count),
+        "--json",
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+    )
+    assert proc.stdout is not None
+    await asyncio.wait_for(proc.stdout.readline(), 10)
+    return proc
+
+
 def error_lines(stderr: str) -> list[str]:
     """The ``error:`` lines (events are JSON lines on a non-terminal stderr)."""
     return [line for line in stderr.splitlines() if line.startswith("error:")]
@@ -120,20 +139,7 @@ async def test_sim_prints_version_header_and_samples() -> None:
 
 
 async def test_survives_garbage_and_crc_errors_mid_stream(emulator: FcEmulator) -> None:
-    proc = await asyncio.create_subprocess_exec(
-        *MKFLIGHT,
-        "mk",
-        "info",
-        "--port",
-        emulator.path,
-        "--count",
-        "30",
-        "--json",
-        stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.PIPE,
-    )
-    assert proc.stdout is not None
-    await asyncio.wait_for(proc.stdout.readline(), 10)  # streaming: now inject faults
+    proc = await start_streaming(emulator.path, 30)
     emulator.inject_garbage(b"\x00\xff#\r garbage \r\n" * 5)
     emulator.corrupt_next(3)
     out, err = await asyncio.wait_for(proc.communicate(), 20)
@@ -213,20 +219,7 @@ async def test_version_but_no_debugout_is_a_clear_runtime_error() -> None:
 
 
 async def test_vanishing_port_is_reported(emulator: FcEmulator) -> None:
-    proc = await asyncio.create_subprocess_exec(
-        *MKFLIGHT,
-        "mk",
-        "info",
-        "--port",
-        emulator.path,
-        "--count",
-        "0",
-        "--json",
-        stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.PIPE,
-    )
-    assert proc.stdout is not None
-    await asyncio.wait_for(proc.stdout.readline(), 10)
+    proc = await start_streaming(emulator.path, 0)
     emulator.vanish()
     _, err = await asyncio.wait_for(proc.communicate(), 10)
     assert proc.returncode == 1
@@ -236,20 +229,7 @@ async def test_vanishing_port_is_reported(emulator: FcEmulator) -> None:
 
 
 async def test_sigint_stops_a_continuous_run_cleanly(emulator: FcEmulator) -> None:
-    proc = await asyncio.create_subprocess_exec(
-        *MKFLIGHT,
-        "mk",
-        "info",
-        "--port",
-        emulator.path,
-        "--count",
-        "0",
-        "--json",
-        stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.PIPE,
-    )
-    assert proc.stdout is not None
-    await asyncio.wait_for(proc.stdout.readline(), 10)
+    proc = await start_streaming(emulator.path, 0)
     proc.send_signal(2)
     _, err = await asyncio.wait_for(proc.communicate(), 10)
     assert proc.returncode == 0, err.decode()
