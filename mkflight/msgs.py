@@ -7,6 +7,11 @@ data was received or measured) and SI values with their units in their names.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # numpy stays off the import path of the MK-only commands
+    import numpy as np
+    import numpy.typing as npt
 
 
 @dataclass(frozen=True, slots=True)
@@ -29,3 +34,30 @@ class ImuSample:
     battery_v: float
     gas_counts: int = 0
     receiver_level: int = 0
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Scan:
+    """One laser scan, in the sensor's step order (SCIP 2.0, ``scip2.md`` §5).
+
+    ``ranges_m[i]`` belongs to step ``first_step + i``; NaN marks an invalid value (an
+    error code < 20 mm, or beyond DMAX), never a distance. Step s points at body angle
+    ``-(s - 384) * 2*pi/1024`` rad (the sensor is counter-clockwise positive, our yaw
+    clockwise: SPEC §1-2), i.e. step 44 is 2.086 rad to the right. ``t_ns`` is the host
+    time at which the front step (384) was measured, not when the scan arrived.
+    """
+
+    t_ns: int
+    ranges_m: npt.NDArray[np.float64]
+    first_step: int
+    seq: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class Pose2D:
+    """A planar pose in the world frame W (SPEC §1): x forward, y right, psi clockwise."""
+
+    t_ns: int
+    x_m: float
+    y_m: float
+    yaw_rad: float
