@@ -7,6 +7,7 @@ Errors print as one ``error:`` line on stderr, never a traceback (``--debug`` sh
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import traceback
 from collections.abc import Sequence
@@ -59,7 +60,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"mkflight {__version__}")
     parser.add_argument(
-        "--log-level", choices=("debug", "info", "warning"), default="info", help="events shown"
+        "--log-level",
+        choices=("debug", "info", "warning"),
+        default="warning",
+        help="events shown on stderr (default: warning; errors are always one error: line)",
     )
     parser.add_argument(
         "--log-json", action="store_true", help="events as JSON lines even on a terminal"
@@ -121,7 +125,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _fail(err, EXIT_RUNTIME, args.debug)
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_RUNTIME
+    except BrokenPipeError:
+        # The reader of our stdout went away (e.g. `| head`): not an error of ours.
+        # Point stdout at /dev/null so that the interpreter's final flush stays quiet.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_OK
     except Exception as err:  # a bug: still one line, the traceback on request
         if args.debug:
             traceback.print_exc()

@@ -41,11 +41,11 @@ class MkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
     port: str = "/dev/ttyUSB0"
     baudrate: Annotated[int, Meta(ge=1200, le=4_000_000)] = 57600
     debug_interval_10ms: Annotated[int, Meta(ge=1, le=255)] = 5
-    resubscribe_s: Annotated[float, Meta(gt=0, le=3.5)] = 2.0
+    resubscribe_s: Annotated[float, Meta(gt=0, le=2.0)] = 2.0
     version_retry_s: Annotated[float, Meta(gt=0, le=5)] = 0.5
-    answer_timeout_s: Annotated[float, Meta(gt=0, le=30)] = 2.5
-    min_frame_gap_s: Annotated[float, Meta(ge=0, le=0.05)] = 0.003
-    release_frames: Annotated[int, Meta(ge=1, le=50)] = 5
+    answer_timeout_s: Annotated[float, Meta(gt=0, le=30)] = 2.0
+    min_frame_gap_s: Annotated[float, Meta(ge=0.003, le=0.05)] = 0.003
+    release_frames: Annotated[int, Meta(ge=3, le=50)] = 5
     release_interval_s: Annotated[float, Meta(ge=0.003, le=0.5)] = 0.05
     handshake_s: Annotated[float, Meta(ge=1.0, le=10)] = 1.0
     reopen_backoff_s: Annotated[float, Meta(gt=0, le=10)] = 0.1

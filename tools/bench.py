@@ -5,7 +5,7 @@ Run: ``pip install -e '.[bench]' && python tools/bench.py`` (``--json`` for mach
 * ``codec``: MK frames encoded and decoded per second (ExternControl encode with its range
   checks; DebugOut streams through the incremental parser and the SI conversion).
 * ``latency``: DebugOut arrival -> ExternControl on the wire, over a real pty pair. A
-  thread poses as the FlightCtrl on the pty's master end: it writes a DebugOut frame and
+  child process poses as the FlightCtrl on the pty's master end: it writes a DebugOut frame and
   timestamps the moment the answering ExternControl frame can be read back. The host side
   is mkflight's link (serialx, eager writes) and, as the baseline, the same loop on
   pyserial-asyncio (whose transport queues every write for the next event-loop turn).
@@ -111,7 +111,7 @@ def fc_process(master: int, samples: int, period_s: float, ready: Any, out: Any)
     out.send(latencies_ms)
 
 
-Host = Callable[[str, Any, int], Coroutine[Any, Any, None]]
+Host = Callable[[str, Any, int], Coroutine[Any, Any, float]]
 
 
 async def busy_task(chunk_ms: float, every_ms: float) -> None:
@@ -126,31 +126,39 @@ async def busy_task(chunk_ms: float, every_ms: float) -> None:
 def with_load(host: Host, chunk_ms: float = 2.0, every_ms: float = 5.0) -> Host:
     """Run ``host`` with :func:`busy_task` beside it on the loop."""
 
-    async def loaded(path: str, ready: Any, samples: int) -> None:
+    async def loaded(path: str, ready: Any, samples: int) -> float:
         busy = asyncio.create_task(busy_task(chunk_ms, every_ms))
         try:
-            await host(path, ready, samples)
+            return await host(path, ready, samples)
         finally:
             busy.cancel()
 
     return loaded
 
 
-async def host_mkflight(path: str, ready: Any, samples: int) -> None:
-    """mkflight's path: serialx stream, MkLink, eager ExternControl write per sample."""
+async def host_mkflight(path: str, ready: Any, samples: int) -> float:
+    """mkflight's path: serialx stream, MkLink, eager ExternControl write per sample.
+
+    Returns the process CPU time per sample after the warm-up, in microseconds.
+    """
     from mkflight.io.serial import open_serial
 
     stream = await open_serial(path, 57600)
     link = MkLink(stream, LinkSettings(), DEFAULT_CALIBRATION)
     link.start()
     ready.set()
-    for _ in range(samples):
+    cpu0 = 0.0
+    for i in range(samples):
+        if i == WARMUP:
+            cpu0 = time.process_time()
         await link.next_sample(timeout_s=5.0)
         link.send_extern_control(COMMAND)
+    cpu_us = (time.process_time() - cpu0) / max(1, samples - WARMUP) * 1e6
     await link.close(release=False)
+    return cpu_us
 
 
-async def host_pyserial_asyncio(path: str, ready: Any, samples: int) -> None:
+async def host_pyserial_asyncio(path: str, ready: Any, samples: int) -> float:
     """The baseline: pyserial-asyncio streams, same parser, writer.write per sample."""
     import serial_asyncio
 
@@ -159,6 +167,7 @@ async def host_pyserial_asyncio(path: str, ready: Any, samples: int) -> None:
     data = COMMAND.encode()
     ready.set()
     answered = 0
+    cpu0 = 0.0
     while answered < samples:
         chunk = await reader.read(4096)
         for frame in parser.feed(chunk):
@@ -166,14 +175,18 @@ async def host_pyserial_asyncio(path: str, ready: Any, samples: int) -> None:
                 imu_from_debug(DebugOut.decode(frame), 0, DEFAULT_CALIBRATION)
                 writer.write(data)
                 answered += 1
+                if answered == WARMUP:
+                    cpu0 = time.process_time()
+    cpu_us = (time.process_time() - cpu0) / max(1, samples - WARMUP) * 1e6
     writer.close()
+    return cpu_us
 
 
 def bench_latency(host: Host, samples: int, period_s: float) -> tuple[list[float], float]:
     """Run one host against the FC process: latencies in ms, host CPU us per sample.
 
-    The CPU figure is the host process's user+system time over the whole run (event loop,
-    parsing, conversion, encoding, the write; open and close included) per sample.
+    The CPU figure is the host process's user+system time per sample in steady state
+    (event loop, parsing, conversion, encoding, the write), warm-up excluded.
     """
     ctx = multiprocessing.get_context("fork")
     master, slave = pty.openpty()
@@ -184,9 +197,7 @@ def bench_latency(host: Host, samples: int, period_s: float) -> tuple[list[float
     fc = ctx.Process(target=fc_process, args=(master, samples + WARMUP, period_s, ready, send))
     fc.start()
     try:
-        cpu0 = time.process_time()
-        asyncio.run(host(path, ready, samples + WARMUP))
-        cpu_us_per_sample = (time.process_time() - cpu0) / (samples + WARMUP) * 1e6
+        cpu_us_per_sample = asyncio.run(host(path, ready, samples + WARMUP))
         latencies: list[float] = receive.recv()[WARMUP:]
         fc.join(timeout=10)
     finally:

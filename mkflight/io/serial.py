@@ -68,6 +68,11 @@ class SerialStream:
         except OSError as err:
             msg = f"{self._name}: write failed: {err}"
             raise LinkError(msg) from err
+        if self._transport.is_closing():
+            # serialx reports a failed os.write by closing the transport, not by raising.
+            error = self._protocol.rx.error
+            msg = f"{self._name}: write failed, port closed" if error is None else str(error)
+            raise LinkError(msg)
 
     async def drain(self) -> None:
         """Wait until serialx has handed every buffered byte to the kernel."""

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from mkflight.config import Config, SimFcConfig
+from mkflight.errors import LinkError
 from mkflight.io.serial import open_serial
 from mkflight.io.stream import ByteStream
 from mkflight.mk.link import LinkSettings, MkLink
@@ -27,9 +28,16 @@ async def emulator(tmp_path: Path) -> AsyncIterator[FcEmulator]:
         yield emu
 
 
-async def open_link(emulator: FcEmulator, settings: LinkSettings = SETTINGS) -> MkLink:
+async def open_link(
+    emulator: FcEmulator, settings: LinkSettings = SETTINGS, failed: asyncio.Event | None = None
+) -> MkLink:
     async def opener() -> ByteStream:
-        return await open_serial(emulator.path, 57600)
+        try:
+            return await open_serial(emulator.path, 57600)
+        except LinkError:
+            if failed is not None:
+                failed.set()
+            raise
 
     link = MkLink(await opener(), settings, DEFAULT_CALIBRATION, reopen=opener)
     await link.connect()
@@ -53,16 +61,18 @@ async def test_take_control_then_release_on_close(emulator: FcEmulator) -> None:
     assert link.stats.confirms_lost == 0
 
 
-async def test_extern_gas_is_capped_by_the_stick(emulator: FcEmulator) -> None:
-    link = await open_link(emulator)
-    await link.next_sample(timeout_s=1.0)
-    link.send_extern_control(ExternControl(gas=250, config=1))  # stick gas is 200
-    await emulator.wait_for(lambda m: m.extern_active)
-    assert emulator.model.effective_command().gas == 200
-    sample = await link.next_sample(timeout_s=1.0)
-    sample = await link.next_sample(timeout_s=1.0)
-    assert sample.gas_counts == 200  # DebugOut Analog[7] shows the cap
-    await link.close()
+async def test_extern_gas_is_capped_by_the_stick(tmp_path: Path) -> None:
+    source = RestingVehicleSource(DEFAULT_CALIBRATION, seed=3)
+    async with FcEmulator(SimFcConfig(stick_gas=100), source) as emulator:
+        link = await open_link(emulator)
+        await link.next_sample(timeout_s=1.0)
+        link.send_extern_control(ExternControl(gas=120, config=1))  # the pilot holds 100
+        await emulator.wait_for(lambda m: m.extern_active)
+        assert emulator.model.effective_command().gas == 100
+        for _ in range(3):
+            sample = await link.next_sample(timeout_s=1.0)
+        assert sample.gas_counts == 100  # DebugOut Analog[7] shows the cap
+        await link.close()
 
 
 async def test_a_stalled_consumer_lets_the_fc_drop_extern_control(emulator: FcEmulator) -> None:
@@ -109,13 +119,14 @@ async def test_silence_then_recovery(emulator: FcEmulator) -> None:
 
 async def test_unplug_and_replug_with_reopen(emulator: FcEmulator) -> None:
     settings = LinkSettings(reopen_backoff_s=0.05, reopen_backoff_max_s=0.2)
-    link = await open_link(emulator, settings)
+    failed = asyncio.Event()
+    link = await open_link(emulator, settings, failed)
     await link.next_sample(timeout_s=1.0)
     emulator.vanish()
-    with pytest.raises(Exception, match="vanished"):
+    with pytest.raises(LinkError, match="vanished"):
         await link.next_sample(timeout_s=1.0)
     reopening = asyncio.create_task(link.reopen(max_wait_s=5.0))
-    await emulator.wait_for(lambda m: True)  # let the first attempts fail on the missing path
+    await asyncio.wait_for(failed.wait(), 2.0)  # an attempt failed on the missing device
     emulator.replug()
     version = await reopening
     assert version.text == "0.84a"

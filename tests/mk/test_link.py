@@ -229,11 +229,16 @@ async def test_renewal_comes_from_the_consumer_only() -> None:
         clock.advance(1_000_000_000)
         device.write(frame)
         await link.next_sample(timeout_s=1.0)
+        await link.drain()
     assert d_count() == 2  # the initial one and one renewal after 2 s
-    clock.advance(10_000_000_000)  # the consumer stalls for 10 s: nobody renews
+    device.write(frame)
+    await link.next_sample(timeout_s=1.0)  # 1 s after the renewal: none due
+    await link.drain()
     assert d_count() == 2
+    clock.advance(10_000_000_000)  # the consumer stalled for 10 s: it renews when it asks
     device.write(frame)
     await link.next_sample(timeout_s=1.0)
+    await link.drain()
     assert d_count() == 3
     await link.close(release=False)
 

@@ -1,0 +1,112 @@
+"""The MK link's settings and counters (split from :mod:`mkflight.mk.link`)."""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+
+from mkflight.config import Config
+from mkflight.io.stream import ByteStream
+from mkflight.mk.codec import ParserStats
+
+NS_PER_S = 1_000_000_000
+
+#: A tap on the raw bytes: (direction 'r' or 'w', host t_ns, data). Used for recordings.
+Tap = Callable[[str, int, bytes], None]
+#: Opens the port again after it vanished (see :meth:`MkLink.reopen`).
+Opener = Callable[[], Awaitable[ByteStream]]
+
+
+@dataclass(frozen=True, slots=True)
+class LinkSettings:
+    """The link's timing and limits, from ``config.mk``, ``config.safety``, ``config.control``.
+
+    ``gas_max`` and ``stick_max_counts`` make the link the last gate on outgoing commands
+    (SPEC §4: gas in [0, gas_max], nick/roll within +-127) whatever the caller computed.
+    """
+
+    baudrate: int = 57600
+    debug_interval_10ms: int = 5
+    resubscribe_s: float = 2.0
+    stale_s: float = 0.2
+    release_after_stale_s: float = 1.0
+    version_retry_s: float = 0.5
+    answer_timeout_s: float = 2.0
+    min_frame_gap_s: float = 0.003
+    release_frames: int = 5
+    release_interval_s: float = 0.05
+    reopen_backoff_s: float = 0.1
+    reopen_backoff_max_s: float = 2.0
+    gas_max: int = 130
+    stick_max_counts: int = 127
+
+    @classmethod
+    def from_config(cls, cfg: Config) -> LinkSettings:
+        """Take the settings from a loaded configuration."""
+        mk = cfg.mk
+        return cls(
+            baudrate=mk.baudrate,
+            debug_interval_10ms=mk.debug_interval_10ms,
+            resubscribe_s=mk.resubscribe_s,
+            stale_s=cfg.safety.mk_stale_s,
+            release_after_stale_s=cfg.safety.mk_release_s,
+            version_retry_s=mk.version_retry_s,
+            answer_timeout_s=mk.answer_timeout_s,
+            min_frame_gap_s=mk.min_frame_gap_s,
+            release_frames=mk.release_frames,
+            release_interval_s=mk.release_interval_s,
+            reopen_backoff_s=mk.reopen_backoff_s,
+            reopen_backoff_max_s=mk.reopen_backoff_max_s,
+            gas_max=cfg.control.gas_max,
+        )
+
+
+@dataclass(slots=True)
+class LinkStats:
+    """What the link saw and did; ends up in ``flight.json``."""
+
+    parser: ParserStats = field(default_factory=ParserStats)
+    samples: int = 0
+    samples_dropped: int = 0
+    foreign_frames: int = 0
+    unknown_frames: int = 0
+    bad_messages: int = 0
+    versions: int = 0
+    subscriptions: int = 0
+    stale_events: int = 0
+    stale_releases: int = 0
+    commands_sent: int = 0
+    confirms: int = 0
+    confirms_lost: int = 0
+    frames_written: int = 0
+    bytes_written: int = 0
+    delayed_writes: int = 0
+    superseded_commands: int = 0
+    reopens: int = 0
+    rtt_ns: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
+
+    def summary(self) -> dict[str, int | float | None]:
+        """Flat counters for logs and ``flight.json``."""
+        rtts = sorted(self.rtt_ns)
+        median = rtts[len(rtts) // 2] / 1e6 if rtts else None
+        return {
+            "bytes_in": self.parser.bytes_in,
+            "frames_in": self.parser.frames,
+            "crc_errors": self.parser.crc_errors,
+            "garbage_bytes": self.parser.discarded_bytes,
+            "malformed_frames": self.parser.malformed + self.bad_messages,
+            "overflows": self.parser.overflows,
+            "samples": self.samples,
+            "samples_dropped": self.samples_dropped,
+            "foreign_frames": self.foreign_frames,
+            "stale_events": self.stale_events,
+            "stale_releases": self.stale_releases,
+            "subscriptions": self.subscriptions,
+            "commands_sent": self.commands_sent,
+            "superseded_commands": self.superseded_commands,
+            "confirms": self.confirms,
+            "confirms_lost": self.confirms_lost,
+            "reopens": self.reopens,
+            "rtt_median_ms": median,
+        }
