@@ -11,7 +11,10 @@ is modelled as running once on every tick boundary; in that pass it first lets t
 expire (subscription, extern-control hold), then handles the one received frame, then
 starts at most one frame if the line is free (§7.5). So answers leave on tick boundaries
 (§10: "the emulator sends on tick boundaries") and a frame arrives at the host when its
-last byte has left, ``len*10/57600`` s after it started (§1).
+last byte has left, ``len*10/57600`` s after it started (§1). Both directions run at wire
+speed: what the host writes arrives byte by byte (:class:`~mkflight.sim.fc_uart.HostLine`)
+and the receiver rules apply at each byte's arrival time; a frame whose last byte arrives
+is handled at the first tick after it (a byte arriving exactly on a tick comes after it).
 
 Parts live beside it: :mod:`~mkflight.sim.fc_uart` (the FC's receiver rules, wire
 timing), :mod:`~mkflight.sim.fc_control` (pilot sticks, ExternControl, the hold counter)
@@ -21,9 +24,9 @@ firmware code is reproduced.
 
 from __future__ import annotations
 
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Final, Protocol
 
 from mkflight.config import SimFcConfig
@@ -40,7 +43,7 @@ from mkflight.mk.messages import (
 )
 from mkflight.sim.fc_answers import DEFAULT_STATUS, build_debug_out, mk3mag_frame, parse_version
 from mkflight.sim.fc_control import FcCommand, FcControls
-from mkflight.sim.fc_uart import FcReceiver, bytes_sent, corrupt_checksum, wire_ns
+from mkflight.sim.fc_uart import FcReceiver, FcTransmitter, HostLine, UartCounters, WireChunk
 
 TICK_NS: Final = 1_024_000  # one FC tick, 20 MHz / 8 / 256 / 10 (§7.1)
 DELAY_OVERSHOOT_TICKS: Final = 2  # an FC delay of t ticks expires after t+1 or t+2 (§7.1)
@@ -65,16 +68,7 @@ class AnalogSource(Protocol):
         ...
 
 
-@dataclass(slots=True)
-class _Chunk:
-    """Bytes on the wire from ``start_ns`` until their last byte leaves at ``end_ns``."""
-
-    start_ns: int
-    end_ns: int
-    data: bytes
-
-
-class FcModel:
+class FcModel(UartCounters):
     """A FlightCtrl 0.84a seen from its serial port, driven by explicit time.
 
     Its state is advanced lazily: properties (``extern_active``, ``hold_counts``,
@@ -94,11 +88,9 @@ class FcModel:
         self.battery_v = settings.battery_v
         self.reboots = 0
         self.controls = FcControls(settings)
-        self._outbox: deque[_Chunk] = deque()
+        self.line = HostLine()  # the host's side: not reset when the FC reboots
+        self.tx = FcTransmitter(t_ns)
         self._now_ns = t_ns
-        self._garbage = b""
-        self._corrupt_count = 0
-        self._silent_until_ns = t_ns
         self._reset(t_ns)
 
     def _reset(self, boot_ns: int) -> None:
@@ -107,7 +99,7 @@ class FcModel:
         self._tick = -1  # every tick up to and including this one has been processed
         self.rx = FcReceiver()
         self._rx_tick = 0  # when the main loop handles the pending frame
-        self._tx_free_ns = boot_ns
+        self.tx.restart(boot_ns)
         self._want_version = False
         self._want_debug = False
         self._want_label: int | None = None
@@ -123,9 +115,6 @@ class FcModel:
         self.rx_malformed = 0
         self.rx_by_cmd: Counter[str] = Counter()
         self.forbidden_requests = 0
-        self.tx_by_cmd: Counter[str] = Counter()
-        self.tx_dropped = 0
-        self.tx_corrupted = 0
 
     # ----------------------------------------------------------------- time
     @property
@@ -151,14 +140,40 @@ class FcModel:
         return -((self._boot_ns - t_ns) // TICK_NS)
 
     def _advance(self, t_ns: int) -> None:
-        """Run the FC's main loop over every tick up to ``t_ns`` that has work in it."""
+        """Run the receiver and the main loop, in time order, over everything up to ``t_ns``.
+
+        Bytes are received up to (not including) the next tick with work in it, then that
+        tick runs; a byte arriving exactly on a tick comes after it.
+        """
         t_ns = max(t_ns, self._now_ns)
-        self._now_ns = t_ns
-        last = (t_ns - self._boot_ns) // TICK_NS
-        while (k := self._next_tick()) is not None and k <= last:
+        while True:
+            k = self._next_tick()
+            tick_ns = None if k is None else self._tick_ns(k)
+            if tick_ns is not None and tick_ns > t_ns:
+                k = tick_ns = None
+            if self._receive_until(t_ns if tick_ns is None else tick_ns - 1):
+                continue
+            if k is None:
+                break
             self._process_tick(k)
             self._tick = k
-        self._tick = max(self._tick, last)
+        self._now_ns = t_ns
+        self._tick = max(self._tick, (t_ns - self._boot_ns) // TICK_NS)
+
+    def _receive_until(self, t_ns: int) -> bool:
+        """Receive the bytes arrived by ``t_ns``, stopping after a good frame; any taken?"""
+        data = self.line.arrived(t_ns)
+        if not data:
+            return False
+        next_ns = self.line.next_ns()
+        if next_ns is not None and next_ns < self._boot_ns:  # a booting FC hears nothing
+            self.line.consume(len(self.line.arrived(min(t_ns, self._boot_ns - 1))))
+            return True
+        used, completed = self.rx.feed_until_frame(data)
+        t_last = self.line.consume(used)
+        if completed:  # handled at the first tick after its '\r' arrived
+            self._rx_tick = (t_last - self._boot_ns) // TICK_NS + 1
+        return True
 
     def _next_tick(self) -> int | None:
         """The earliest unprocessed tick at which the main loop has something to do."""
@@ -169,7 +184,7 @@ class FcModel:
             ticks.append(self._renew_tick + SUBSCRIPTION_TICKS)
         if self.controls.extern_requested:
             ticks.append(self.controls.hold_zero_tick())
-        free = self._first_tick_at(self._tx_free_ns)
+        free = self._first_tick_at(self.tx.free_ns)
         if (
             self._want_version
             or self._want_debug
@@ -196,36 +211,23 @@ class FcModel:
             frame = self.rx.take()
             if frame is not None:
                 self._handle(frame, k)
-        if self._tick_ns(k) >= self._tx_free_ns:
+        if self._tick_ns(k) >= self.tx.free_ns:
             self._send_one(k)
 
     # ----------------------------------------------------------------- receiving
-    def receive(self, data: bytes, t_ns: int) -> None:
-        r"""Bytes from the host, all arriving at ``t_ns`` (§3 "How the FC receives").
+    def receive(self, data: bytes, t_ns: int) -> WireChunk:
+        r"""The host writes ``data`` at ``t_ns``; it arrives at wire speed (§1, §3).
 
-        A '#' starts a frame only when the receiver is idle and the last frame has been
-        handled (at the next tick); inside a frame every byte is kept until '\r'. A bad
-        checksum is dropped and counted; a frame reaching 170 bytes resets the receiver.
-        A booting FC hears nothing.
+        The chunk starts at ``t_ns`` or when the previous byte written has arrived,
+        whichever is later, and its bytes follow back to back; the returned chunk says
+        when. At each byte's arrival: a '#' starts a frame only when the receiver is idle
+        and the last frame has been handled (at the first tick after its '\r'), else
+        the frame is lost (:attr:`rx_lost_frames`); inside a frame every byte is kept
+        until '\r'. A bad checksum is dropped and counted; a frame reaching 170 bytes
+        resets the receiver. A booting FC hears nothing.
         """
         self._advance(t_ns)
-        if not self.booting and self.rx.feed(data):
-            self._rx_tick = max(self._first_tick_at(self._now_ns), self._tick + 1)
-
-    @property
-    def rx_crc_errors(self) -> int:
-        """Frames dropped for a bad checksum (or too short to have one)."""
-        return self.rx.crc_errors
-
-    @property
-    def rx_overflows(self) -> int:
-        r"""Frames dropped for reaching 170 bytes without '\r' (§2.4)."""
-        return self.rx.overflows
-
-    @property
-    def rx_ignored_bytes(self) -> int:
-        """Bytes outside frames, including frames lost while the last was unhandled."""
-        return self.rx.ignored_bytes
+        return self.line.write(data, self._now_ns)
 
     def _handle(self, frame: Frame, k: int) -> None:
         """Act on one received frame at tick ``k`` (§4, §7.2-7.4)."""
@@ -276,21 +278,22 @@ class FcModel:
         frame cut off by a :meth:`reboot`.
         """
         self._advance(t_ns)
-        out: list[bytes] = []
-        while self._outbox and self._outbox[0].end_ns <= self._now_ns:
-            out.append(self._outbox.popleft().data)
-        return out
+        return self.tx.take_sent(self._now_ns)
 
     def next_event_ns(self) -> int | None:
-        """The earliest time at which :meth:`poll` may return something or state changes.
+        r"""The earliest time at which :meth:`poll` may return something or state changes.
 
-        None means nothing will happen until more bytes are received.
+        Besides ticks and frames leaving, that is when the next '\r' written by the host
+        (or the end of a chunk) arrives. None means nothing will happen until more bytes
+        are written.
         """
         times: list[int] = []
+        if (line_ns := self.line.next_event_ns()) is not None:
+            times.append(line_ns)
         if self._now_ns < self._boot_ns:
             times.append(self._boot_ns)  # the end of a reboot
-        if self._outbox:
-            times.append(self._outbox[0].end_ns)
+        if (sent_ns := self.tx.next_end_ns()) is not None:
+            times.append(sent_ns)
         k = self._next_tick()
         if k is not None:
             times.append(self._tick_ns(k))
@@ -302,38 +305,23 @@ class FcModel:
         if self._want_version:
             self._want_version = False
             version = replace(self.version, hardware_error=self.hardware_error)
-            self._emit(t_ns, version.encode(), "V")
+            self.tx.emit(t_ns, version.encode(), "V")
         elif self.settings.mk3mag_frames and k >= self._mag_due_tick:
             self._mag_due_tick = k + MK3MAG_PERIOD_TICKS
-            self._emit(t_ns, mk3mag_frame(self.source.analog(t_ns, self)), "k")
+            self.tx.emit(t_ns, mk3mag_frame(self.source.analog(t_ns, self)), "k")
         elif self._want_debug or (self._debug_period_ticks and k >= self._debug_due_tick):
             self._want_debug = False
             self._debug_due_tick = k + self._debug_period_ticks + DELAY_OVERSHOOT_TICKS
-            self._emit(t_ns, self.debug_out(t_ns).encode(), "D")
+            self.tx.emit(t_ns, self.debug_out(t_ns).encode(), "D")
         elif self._want_label is not None:
             index, self._want_label = self._want_label, None
-            self._emit(t_ns, Label(index, ANALOG_LABELS_084A[index]).encode(), "A")
+            self.tx.emit(t_ns, Label(index, ANALOG_LABELS_084A[index]).encode(), "A")
         elif self._confirm_frame:
             frame, self._confirm_frame = self._confirm_frame, 0
-            self._emit(t_ns, encode_frame(ADDR_FC, "B", bytes((frame,))), "B")
+            self.tx.emit(t_ns, encode_frame(ADDR_FC, "B", bytes((frame,))), "B")
         elif self._want_ppm:
             self._want_ppm = False
-            self._emit(t_ns, Ppm(self.controls.ppm_channels).encode(), "P")
-
-    def _emit(self, t_ns: int, frame: bytes, kind: str) -> None:
-        """Put ``frame`` on the wire at ``t_ns`` (or lose it, as the faults say)."""
-        if t_ns < self._silent_until_ns:
-            self.tx_dropped += 1
-            self._tx_free_ns = t_ns + wire_ns(len(frame))
-            return
-        if self._corrupt_count > 0:
-            self._corrupt_count -= 1
-            self.tx_corrupted += 1
-            frame = corrupt_checksum(frame)
-        chunk, self._garbage = self._garbage + frame, b""
-        self._tx_free_ns = t_ns + wire_ns(len(chunk))
-        self._outbox.append(_Chunk(t_ns, self._tx_free_ns, chunk))
-        self.tx_by_cmd[kind] += 1
+            self.tx.emit(t_ns, Ppm(self.controls.ppm_channels).encode(), "P")
 
     def debug_out(self, t_ns: int) -> DebugOut:
         """The DebugOut the FC would send at ``t_ns`` (§6): source values win."""
@@ -368,18 +356,18 @@ class FcModel:
     # ----------------------------------------------------------------- faults
     def inject_garbage(self, data: bytes) -> None:
         """Send ``data`` on the wire just before the next frame."""
-        self._garbage += data
+        self.tx.garbage += data
 
     def corrupt_next(self, n: int) -> None:
         """Give the next ``n`` frames sent a bad checksum."""
-        self._corrupt_count += n
+        self.tx.corrupt_count += n
 
     def silence(self, until_ns: int) -> None:
         """Lose every frame that would start before ``until_ns`` (a dead TX line).
 
         The FC does not notice: its timers and flags run on, receiving still works.
         """
-        self._silent_until_ns = max(self._silent_until_ns, until_ns)
+        self.tx.silent_until_ns = max(self.tx.silent_until_ns, until_ns)
 
     def reboot(self, t_ns: int, *, boot_ns: int = DEFAULT_BOOT_NS) -> None:
         """Reset the FC at ``t_ns`` (brown-out, watchdog): §8 item 7.
@@ -389,10 +377,6 @@ class FcModel:
         hold counter 100, counters at zero. The pilot's sticks are not the FC's state.
         """
         self._advance(t_ns)
-        if self._outbox and self._outbox[-1].end_ns > self._now_ns:
-            chunk = self._outbox.pop()
-            sent = bytes_sent(self._now_ns - chunk.start_ns)
-            if sent > 0:
-                self._outbox.append(_Chunk(chunk.start_ns, self._now_ns, chunk.data[:sent]))
+        self.tx.cut(self._now_ns)
         self.reboots += 1
         self._reset(self._now_ns + boot_ns)

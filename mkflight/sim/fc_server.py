@@ -9,6 +9,10 @@ new input), then writes the frames :meth:`FcModel.poll` has finished. No periodi
 Faults: :meth:`FcEmulator.vanish`/:meth:`FcEmulator.replug` pull and reinsert the USB
 adapter (the FC itself keeps running, as it does when only the adapter is unplugged);
 the model's own faults are passed through with times relative to now.
+
+A crash of either task (an :class:`~mkflight.sim.fc.AnalogSource` raising, a failing pty
+read) is not swallowed: it is kept in :attr:`FcEmulator.error`, makes
+:meth:`FcEmulator.wait_for` raise at once, and is re-raised by :meth:`FcEmulator.stop`.
 """
 
 from __future__ import annotations
@@ -57,7 +61,7 @@ class FcEmulator:
         self._plugged = asyncio.Event()
         self._plug_generation = 0
         self.lost_chunks = 0
-        self.error: LinkError | None = None
+        self.error: BaseException | None = None  # the first crash of a task
 
     # ----------------------------------------------------------------- lifecycle
     async def start(self) -> None:
@@ -71,15 +75,33 @@ class FcEmulator:
             asyncio.create_task(self._read_loop(), name=f"{self._name}-rx"),
             asyncio.create_task(self._send_loop(), name=f"{self._name}-tx"),
         ]
+        for task in self._tasks:
+            task.add_done_callback(self._on_task_done)
 
     async def stop(self) -> None:
-        """Stop serving and close the pty (its link is removed)."""
+        """Stop serving and close the pty (its link is removed).
+
+        Raises:
+            BaseException: the first crash of a task (:attr:`error`), once, after the
+                cleanup.
+        """
         tasks, self._tasks = self._tasks, []
         for task in tasks:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
         if self._device is not None:
             await self._device.close()
+        if tasks and self.error is not None:
+            raise self.error
+
+    def _on_task_done(self, task: asyncio.Task[None]) -> None:
+        """Keep the first crash and wake :meth:`wait_for`; a cancelled task is no crash."""
+        if task.cancelled():
+            return
+        err = task.exception()
+        if err is not None and self.error is None:
+            self.error = err
+        self._notify()
 
     async def __aenter__(self) -> FcEmulator:
         await self.start()
@@ -91,7 +113,14 @@ class FcEmulator:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        await self.stop()
+        """Stop; a task crash is raised unless the body already raised (then it is noted)."""
+        if exc is None:
+            await self.stop()
+            return
+        try:
+            await self.stop()
+        except Exception as crash:
+            exc.add_note(f"{self._name}: emulator task crashed: {crash!r}")
 
     @property
     def path(self) -> str:
@@ -126,14 +155,13 @@ class FcEmulator:
             generation = self._plug_generation
             try:
                 data = await device.read()
-            except LinkError as err:
+            except LinkError:
                 if generation != self._plug_generation:
                     continue  # replugged while we waited on the old pty
                 if not device.is_open:
                     await self._plugged.wait()
                     continue
-                self.error = err
-                return
+                raise
             model.receive(data, time.monotonic_ns())
             self._poke()
 
@@ -173,12 +201,19 @@ class FcEmulator:
         """Wait until ``predicate(model)`` holds, checking whenever the model changed.
 
         Raises:
+            RuntimeError: a task of the emulator crashed (before or while waiting); the
+                crash is its ``__cause__``.
             TimeoutError: it did not hold within ``timeout_s``.
         """
         model = self.model
         try:
             async with asyncio.timeout(timeout_s):
-                while not predicate(model):
+                while True:
+                    if self.error is not None:
+                        msg = f"{self._name}: emulator task crashed: {self.error!r}"
+                        raise RuntimeError(msg) from self.error
+                    if predicate(model):
+                        return
                     await self._changed.wait()
         except TimeoutError as err:
             msg = f"{self._name}: condition not met within {timeout_s} s"

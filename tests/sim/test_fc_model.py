@@ -4,95 +4,48 @@ from __future__ import annotations
 
 import itertools
 import statistics
-from collections.abc import Sequence
 
 import pytest
 
 from mkflight.config import SimFcConfig
 from mkflight.errors import ConfigError
-from mkflight.mk.codec import Frame, FrameParser, encode_frame
-from mkflight.mk.messages import Confirm, DebugOut, ExternControl, Ppm, debug_request
+from mkflight.mk.codec import FrameParser, encode_frame
+from mkflight.mk.messages import Confirm, DebugOut, Ppm, debug_request
 from mkflight.sim.fc import TICK_NS, FcModel
 from mkflight.sim.fc_answers import parse_version
 from mkflight.sim.fc_control import FcCommand
 from mkflight.sim.fc_uart import wire_ns
-from mkflight.sim.sources import FixedSource
-
-# Vectors of mk-serial.md §9 (bytes literals copied from the tables).
-MK_01 = b"#bv@x\r"
-MK_02 = b"#av@w\r"
-MK_03 = b"#bV=BMH============PH\r"
-MK_04 = b"#bd>M==Dk\r"
-MK_05 = b"#bd====DZ\r"
-MK_07 = (
-    b"#bD=m?B|oq=rLxw=Ld|[=@n|v=>S]>s=I]=j==y=@q=L]=|=================]"
-    b"====================@|\\m?=hm\r"
+from tests.sim.fc_helpers import (
+    D_WIRE_NS,
+    MK04_WIRE_NS,
+    MK07_VALUES,
+    MK08_VALUES,
+    MK16_CHANNELS,
+    MK_01,
+    MK_02,
+    MK_03,
+    MK_04,
+    MK_05,
+    MK_07,
+    MK_08,
+    MK_09,
+    MK_11,
+    MK_13,
+    MK_14,
+    MK_15,
+    MK_16,
+    MK_17,
+    MK_18,
+    MK_19,
+    MS,
+    T0,
+    S,
+    extern,
+    frames,
+    make,
+    run,
+    times_of,
 )
-MK_08 = (
-    b"#bD=m@q|ny=y|y^=Lt|@]@{|{=>==>s=I]=@mBs=De=[=>z==============>u"
-    b"============================ge\r"
-)
-MK_09 = b"#bb====x=y=V===>mA=Ry\r"
-MK_11 = b"#bb============?M==PF\r"
-MK_13 = b"#bB>m==Di\r"
-MK_14 = b"#bB?M==DJ\r"
-MK_15 = b"#bp@r\r"
-MK_16 = b"#bP==>k=J`|CM===D]=========================================================HU\r"
-MK_17 = b"#ba====DW\r"
-MK_18 = b"#bA=ABkVsnbPcb`Wo=]E?=]E?==^x\r"
-MK_19 = b"#dk^\\yj======A=Nx\r"
-MK_23 = b"#bd>M#bB>m==Di\r"
-
-MK07_VALUES = {0: -123, 1: 45, 2: -300, 3: 250, 4: -7, 5: 120, 6: -15, 7: 400, 8: 90, 9: 118}
-MK07_VALUES |= {10: 200, 11: 180, 12: 60, 13: 61, 14: 62, 15: 63, 21: 512, 30: 32767}
-MK07_VALUES |= {31: -32768}
-MK08_VALUES = {0: -12, 1: 31, 2: -13, 3: 33, 4: -3, 5: 14, 6: -2, 7: 480, 8: 0, 9: 118}
-MK08_VALUES |= {10: 200, 11: 271, 12: 118, 13: 122, 14: 120, 15: 125, 21: 120}
-MK16_CHANNELS = {1: 110, 2: -40, 3: 25, 5: 120}
-
-SETTINGS = SimFcConfig(mk3mag_frames=False, external_control=200)
-T0 = 7_000_000_123  # boot time: deliberately not a multiple of anything
-MS = 1_000_000
-S = 1_000_000_000
-D_WIRE_NS = wire_ns(94)
-
-
-def make(settings: SimFcConfig = SETTINGS, values: dict[int, int] | None = None) -> FcModel:
-    return FcModel(settings, FixedSource(values or {}), t_ns=T0)
-
-
-def run(
-    fc: FcModel, end_ns: int, inputs: Sequence[tuple[int, bytes]] = ()
-) -> list[tuple[int, bytes]]:
-    """Drive the model at its own event times and the input times only, as the server does.
-
-    Returns each chunk with the time it was polled: its delivery time.
-    """
-    out: list[tuple[int, bytes]] = []
-    todo = list(inputs)
-    while True:
-        t_event = fc.next_event_ns()
-        t = min(x for x in (t_event, todo[0][0] if todo else None, end_ns) if x is not None)
-        out += [(t, chunk) for chunk in fc.poll(t)]
-        if todo and todo[0][0] == t:
-            fc.receive(todo.pop(0)[1], t)
-        elif t >= end_ns:
-            return out
-
-
-def frames(chunks: list[tuple[int, bytes]], parser: FrameParser | None = None) -> list[Frame]:
-    parser = parser or FrameParser()
-    return [f for _, chunk in chunks for f in parser.feed(chunk)]
-
-
-def times_of(chunks: list[tuple[int, bytes]], cmd: str) -> list[int]:
-    return [t for t, chunk in chunks if chunk[2:3] == cmd.encode()]
-
-
-def extern(
-    *, nick: int = 0, roll: int = 0, yaw: int = 0, gas: int = 0, frame: int = 0, config: int = 0
-) -> bytes:
-    return ExternControl(nick, roll, yaw, gas, frame=frame, config=config).encode()
 
 
 def test_vector_literals_match_the_encoders() -> None:
@@ -120,11 +73,13 @@ def test_first_answer_is_byte_identical(
 ) -> None:
     fc = make(values=values)
     fc.controls.set_ppm(channels)
-    fc.receive(request_frame, T0 + 3 * MS)
+    arrived_ns = fc.receive(request_frame, T0 + 3 * MS).end_ns
+    assert arrived_ns == T0 + 3 * MS + wire_ns(len(request_frame))  # at wire speed (§1)
     chunks = run(fc, T0 + 100 * MS)
     assert chunks[0][1] == reply
-    # Answered at the next tick, delivered when its last byte has left (§1, §7.5).
-    assert chunks[0][0] - (T0 + 3 * MS) <= TICK_NS + wire_ns(len(reply))
+    # Answered at the first tick after the request's last byte arrived, delivered when
+    # the answer's last byte has left (§1, §7.5).
+    assert 0 < chunks[0][0] - wire_ns(len(reply)) - arrived_ns <= TICK_NS
 
 
 def test_mk3mag_frame_every_99_ticks_matches_mk19() -> None:
@@ -134,35 +89,6 @@ def test_mk3mag_frame_every_99_ticks_matches_mk19() -> None:
     starts = [t - wire_ns(len(MK_19)) for t in times_of(chunks, "k")]
     assert {b - a for a, b in itertools.pairwise(starts)} == {99 * TICK_NS}
     assert len(starts) == 9
-
-
-def test_truncated_frame_swallows_the_next_one_mk23() -> None:
-    fc = make()
-    fc.receive(MK_23, T0 + 1 * MS)
-    assert run(fc, T0 + 100 * MS) == []
-    assert (fc.rx_frames, fc.rx_crc_errors) == (0, 1)
-    fc.receive(MK_01, T0 + 200 * MS)  # the frame after that is received normally
-    assert [c for _, c in run(fc, T0 + 300 * MS)] == [MK_03]
-
-
-def test_frame_arriving_before_the_last_is_handled_is_lost() -> None:
-    fc = make()
-    fc.receive(MK_01 + MK_15, T0 + 1 * MS)  # two frames in one write (§3: don't)
-    assert [c for _, c in run(fc, T0 + 100 * MS)] == [MK_03]
-    assert fc.rx_frames == 1
-    assert fc.rx_ignored_bytes == len(MK_15)
-
-
-def test_receiver_rules_overflow_bad_crc_unknown() -> None:
-    fc = make()
-    fc.receive(b"#bv" + b"=" * 200, T0 + 1 * MS)  # no '\r' within 170 bytes
-    fc.receive(b"#bv@y\r", T0 + 5 * MS)  # bad checksum: dropped silently
-    fc.receive(encode_frame(1, "z"), T0 + 10 * MS)  # unknown command: ignored
-    fc.receive(b"\x00\xffAT\r", T0 + 15 * MS)  # noise outside a frame
-    assert run(fc, T0 + 100 * MS) == []
-    assert (fc.rx_overflows, fc.rx_crc_errors, fc.rx_unknown) == (1, 1, 1)
-    fc.receive(MK_01, T0 + 120 * MS)
-    assert [c for _, c in run(fc, T0 + 200 * MS)] == [MK_03]
 
 
 def test_forbidden_requests_are_counted_never_acted_on() -> None:
@@ -182,13 +108,13 @@ def test_debug_stream_every_52_ticks_with_one_immediate_frame() -> None:
     fc.receive(MK_04, T0 + 10 * MS)
     chunks = run(fc, T0 + 2 * S)
     d = times_of(chunks, "D")
-    assert d[0] - (T0 + 10 * MS) <= TICK_NS + D_WIRE_NS  # answered at once
+    assert d[0] - (T0 + 10 * MS) <= MK04_WIRE_NS + TICK_NS + D_WIRE_NS  # answered at once
     assert {b - a for a, b in itertools.pairwise(d)} == {52 * TICK_NS}  # ≈ 53.2 ms
     # A renewal mid-period: one DebugOut at once, then the period restarts from it.
     renew_ns = d[-1] + 20 * MS
     fc.receive(MK_04, renew_ns)
     d2 = times_of(run(fc, renew_ns + 200 * MS), "D")
-    assert d2[0] - renew_ns <= TICK_NS + D_WIRE_NS
+    assert d2[0] - renew_ns <= MK04_WIRE_NS + TICK_NS + D_WIRE_NS
     assert d2[1] - d2[0] == 52 * TICK_NS
 
 
@@ -288,25 +214,30 @@ def test_requests_are_flags_not_a_queue() -> None:
     fc = make()
     fc.receive(MK_04, T0 + 1 * MS)
     d0 = times_of(run(fc, T0 + 2 * MS), "D")
-    assert d0 == []  # the first DebugOut is on the wire until ≈ 18 ms
-    fc.receive(MK_01, T0 + 4 * MS)
-    fc.receive(MK_01, T0 + 8 * MS)
-    fc.receive(extern(frame=7), T0 + 10 * MS)
-    fc.receive(extern(frame=8), T0 + 13 * MS)
+    assert d0 == []  # the first DebugOut is on the wire until ≈ 19.4 ms
+    # Spaced by a frame's wire time + >= 1 tick, so none is lost on the way in (§3).
+    fc.receive(extern(frame=7), T0 + 4 * MS)
+    fc.receive(extern(frame=8), T0 + 9 * MS)
+    fc.receive(MK_01, T0 + 14 * MS)
+    fc.receive(MK_01, T0 + 16 * MS)
     found = frames(run(fc, T0 + 50 * MS))
+    assert fc.rx_by_cmd == {"d": 1, "b": 2, "v": 2}
     assert [f.cmd for f in found] == ["D", "V", "B"]
     assert Confirm.decode(found[2]).frame == 8  # the last Frame number
     fc.receive(MK_04, T0 + 57 * MS)  # keeps the line busy
     fc.receive(extern(frame=7), T0 + 60 * MS)  # lost: a newer 'b' with Frame 0 (§5.3)
-    fc.receive(extern(frame=0), T0 + 64 * MS)
+    fc.receive(extern(frame=0), T0 + 66 * MS)
+    assert fc.tx.free_ns > T0 + 72 * MS  # the line was busy all along
     assert "B" not in [f.cmd for f in frames(run(fc, T0 + 100 * MS))]
 
 
 def test_answers_leave_by_priority_v_d_a_b_p() -> None:
     fc = make()
     fc.receive(MK_04, T0 + 1 * MS)
-    for i, request in enumerate([MK_15, extern(frame=5), encode_frame(1, "a", b"\x03"), MK_01]):
-        fc.receive(request, T0 + (4 + 3 * i) * MS)
+    # All handled while the first DebugOut is on the wire (until ≈ 19.4 ms).
+    requests = [(4, MK_15), (6, encode_frame(1, "a", b"\x03")), (9, MK_01), (12, extern(frame=5))]
+    for t_ms, request in requests:
+        fc.receive(request, T0 + t_ms * MS)
     found = frames(run(fc, T0 + 80 * MS))
     assert [f.cmd for f in found] == ["D", "V", "A", "B", "P", "D"]
     assert found[2].payload[0] == 3

@@ -26,6 +26,7 @@ from mkflight.mk.messages import (
     debug_request,
     version_request,
 )
+from mkflight.sim.fc import FcModel
 from mkflight.sim.fc_server import FcEmulator
 from mkflight.sim.sources import FixedSource
 
@@ -149,3 +150,63 @@ async def test_reboot_forgets_the_subscription(emu: FcEmulator, client: SerialSt
 async def test_wait_for_times_out_with_a_clear_message(emu: FcEmulator) -> None:
     with pytest.raises(TimeoutError, match="fc: condition not met"):
         await emu.wait_for(lambda m: m.rx_frames > 0, timeout_s=0.05)
+
+
+class FailingSource:
+    """DebugOut values until told to fail; then every call raises (a broken simulation)."""
+
+    def __init__(self) -> None:
+        self.fail = False
+
+    def analog(self, t_ns: int, fc: FcModel) -> dict[int, int]:
+        if self.fail:
+            msg = "the simulation broke"
+            raise ValueError(msg)
+        return {9: 118}
+
+
+async def test_a_task_crash_is_raised_by_wait_for_and_stop(tmp_path: Path) -> None:
+    source = FailingSource()
+    emu = FcEmulator(SETTINGS, source, link=tmp_path / "fc")
+    await emu.start()
+    client = await open_serial(emu.path, BAUD)
+    try:
+        client.write(debug_request(5))
+        await read_frames(client, FrameParser(), 1, "D")
+        source.fail = True  # the next DebugOut is built in the send task: it crashes
+        with pytest.raises(RuntimeError, match="fc: emulator task crashed") as info:
+            await emu.wait_for(lambda m: False, timeout_s=30.0)  # raised at once, no timeout
+        assert isinstance(info.value.__cause__, ValueError)
+        assert emu.error is info.value.__cause__
+        with pytest.raises(RuntimeError, match="crashed"):  # and on every later call
+            await emu.wait_for(lambda m: True)
+    finally:
+        await client.close()
+        with pytest.raises(ValueError, match="the simulation broke"):
+            await emu.stop()
+    assert not (tmp_path / "fc").exists()  # cleaned up before raising
+    await emu.stop()  # raised once
+
+
+async def test_a_task_crash_is_raised_when_the_context_exits(tmp_path: Path) -> None:
+    source = FailingSource()
+    source.fail = True
+
+    async def serve(*, catch: bool) -> None:
+        async with FcEmulator(SETTINGS, source, link=tmp_path / "fc") as emu:
+            client = await open_serial(emu.path, BAUD)
+            try:
+                client.write(debug_request(5))  # its DebugOut crashes the send task
+                if catch:
+                    with pytest.raises(RuntimeError, match="crashed"):
+                        await emu.wait_for(lambda m: m.tx_by_cmd["D"] > 0)
+                else:
+                    await emu.wait_for(lambda m: m.tx_by_cmd["D"] > 0)
+            finally:
+                await client.close()
+
+    with pytest.raises(ValueError, match="the simulation broke"):
+        await serve(catch=True)  # the body ended normally: the exit raises the crash
+    with pytest.raises(RuntimeError, match="crashed") as info:
+        await serve(catch=False)  # the body raised: its exception wins, with a note
+    assert info.value.__notes__ == ["fc: emulator task crashed: ValueError('the simulation broke')"]
