@@ -70,7 +70,8 @@ class LaserConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_on
     hat_offset_m: Annotated[float, Meta(ge=0, le=1)] = 0.05
     min_range_m: NonNegFloat = 0.02
     max_range_m: PosFloat = 5.6
-    delay_s: NonNegFloat = 0.1
+    transport_delay_s: Annotated[float, Meta(ge=0, le=0.5)] = 0.03
+    stall_s: Annotated[float, Meta(gt=0, le=5)] = 0.3
 
 
 class EstimationConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):

@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import errno
 from collections import deque
+from collections.abc import Awaitable, Callable
 from typing import Protocol
 
 from mkflight.errors import LinkError
@@ -44,6 +45,12 @@ class ByteStream(Protocol):
     async def close(self) -> None:
         """Close the stream; pending and later reads raise :class:`LinkError`."""
         ...
+
+
+#: A tap on the raw bytes: (direction 'r' or 'w', host t_ns, data). Used for recordings.
+Tap = Callable[[str, int, bytes], None]
+#: Opens a port again after it vanished (the links' ``reopen``).
+Opener = Callable[[], Awaitable["ByteStream"]]
 
 
 class ChunkQueue:

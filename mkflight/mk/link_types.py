@@ -3,19 +3,15 @@
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
 from mkflight.config import Config
-from mkflight.io.stream import ByteStream
+from mkflight.io.stream import Opener, Tap
 from mkflight.mk.codec import ParserStats
 
-NS_PER_S = 1_000_000_000
+__all__ = ["NS_PER_S", "LinkSettings", "LinkStats", "Opener", "Tap"]
 
-#: A tap on the raw bytes: (direction 'r' or 'w', host t_ns, data). Used for recordings.
-Tap = Callable[[str, int, bytes], None]
-#: Opens the port again after it vanished (see :meth:`MkLink.reopen`).
-Opener = Callable[[], Awaitable[ByteStream]]
+NS_PER_S = 1_000_000_000
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,0 +1,475 @@
+"""The asynchronous URG-04LX driver: SCIP 2.0 start-up, MD streaming, stamping, recovery.
+
+One :class:`UrgDriver` owns one :class:`~mkflight.io.stream.ByteStream`. A reader task
+feeds the sans-I/O :class:`~mkflight.urg.replies.ReplyParser`; replies to requests are
+matched by their echo, scan messages of the current stream (recognised by the ``;tag``
+the driver puts in every MD) become :class:`~mkflight.msgs.Scan` records.
+
+Start-up follows ``scip2.md`` §6: QT and drain until ~150 ms of silence (the sensor may
+still stream from an earlier run), ``SCIP2.0`` (``0`` or ``0E`` both mean success),
+``TM2`` if a command is refused with ``0E`` (time-adjust mode), ``RS`` (laser off, timer
+to 0), ``VV``/``PP``/``II`` (the seven PP keys are required and used), then ``MD`` over
+the steps the configuration needs (scan and hat steps), every scan, until ``QT``.
+
+Stamping: each scan's 24-bit sensor timestamp (step 0) is unwrapped and mapped to the
+host clock by :class:`~mkflight.urg.timesync.SensorClock` (offset + drift), and the scan
+is stamped with the host time at which its front step (AFRT) was measured, not the time
+it arrived (~70 ms later for a full scan, plus USB).
+
+Recovery (§6 items 3-5, 8): a scan with a bad sum is dropped and counted, a run of them
+re-issues MD; no scan for ``stall_s`` re-issues MD (QT, drain, MD with a new tag); error
+statuses in a stream re-issue MD and, repeated, fail; a vanished device is a
+:class:`~mkflight.errors.LinkError` naming the port, and :meth:`UrgDriver.reopen` tries
+again with back-off and the whole start-up. :meth:`UrgDriver.close` sends QT.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from dataclasses import dataclass, field
+
+import numpy as np
+import structlog
+
+from mkflight.clock import Clock, MonotonicClock
+from mkflight.config import LaserConfig
+from mkflight.errors import LinkError, ProtocolError
+from mkflight.io.stream import ByteStream, Opener, Tap
+from mkflight.msgs import Scan
+from mkflight.urg.codec import md_command, scip2_command, simple_command, tm_command
+from mkflight.urg.replies import InfoReply, ParserStats, Reply, ReplyParser, ScanReply
+from mkflight.urg.timesync import SensorClock
+from mkflight.urg.units import (
+    URG_04LX,
+    SensorParams,
+    TimestampUnwrapper,
+    parse_params,
+)
+
+log = structlog.get_logger("mkflight.urg")
+
+NS_PER_S = 1_000_000_000
+
+
+@dataclass(frozen=True, slots=True)
+class UrgSettings:
+    """Steps to stream, the fixed transport delay and the timing of the recovery rules."""
+
+    first_step: int = 44
+    last_step: int = 725
+    request_timeout_s: float = 1.0
+    drain_silence_s: float = 0.15
+    drain_max_s: float = 1.0
+    stall_s: float = 0.3
+    transport_delay_s: float = 0.03
+    max_restarts: int = 5
+    sum_error_run: int = 3
+    reopen_backoff_s: float = 0.1
+    reopen_backoff_max_s: float = 2.0
+
+
+def settings_from_config(laser: LaserConfig) -> UrgSettings:
+    """Stream every step the configuration uses (hat and scan steps)."""
+    return UrgSettings(
+        first_step=min(laser.hat_steps[0], laser.scan_steps[0]),
+        last_step=max(laser.hat_steps[1], laser.scan_steps[1]),
+        stall_s=laser.stall_s,
+        transport_delay_s=laser.transport_delay_s,
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class UrgInfo:
+    """What the sensor said about itself at start-up (VV, PP, II)."""
+
+    version: dict[str, str]
+    params: SensorParams
+    status: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def summary(self) -> str:
+        """One line for humans: product, firmware, serial."""
+        v = self.version
+        return (
+            f"{v.get('PROD', '?')} firmware {v.get('FIRM', '?')} serial {v.get('SERI', '?')}, "
+            f"steps {self.params.amin_step}-{self.params.amax_step}, "
+            f"{self.params.scan_rpm} rpm"
+        )
+
+
+@dataclass(slots=True)
+class UrgStats:
+    """What the driver saw and did; ends up in ``flight.json``."""
+
+    parser: ParserStats = field(default_factory=ParserStats)
+    scans: int = 0
+    scans_dropped: int = 0
+    stale_stream_scans: int = 0
+    restarts: int = 0
+    stalls: int = 0
+    stream_errors: int = 0
+    reopens: int = 0
+
+
+def _resolve(waiter: asyncio.Future[None]) -> None:
+    if not waiter.done():
+        waiter.set_result(None)
+
+
+class UrgDriver:
+    """One URG on one byte stream (see the module docstring)."""
+
+    def __init__(
+        self,
+        stream: ByteStream,
+        settings: UrgSettings | None = None,
+        clock: Clock | None = None,
+        *,
+        reopen: Opener | None = None,
+        tap: Tap | None = None,
+    ) -> None:
+        self._stream = stream
+        self._s = settings or UrgSettings()
+        self._clock: Clock = clock or MonotonicClock()
+        self._opener = reopen
+        self._tap = tap
+        self.port = stream.name
+        self.stats = UrgStats()
+        self._parser = ReplyParser()
+        self.stats.parser = self._parser.stats
+        self.params: SensorParams = URG_04LX
+        self.info: UrgInfo | None = None
+        self._sensor_clock = SensorClock()
+        self._unwrap = TimestampUnwrapper()
+        self._reader: asyncio.Task[None] | None = None
+        self._error: LinkError | None = None
+        self._waiters: list[tuple[bytes, asyncio.Future[Reply]]] = []
+        self._last_rx_ns = 0
+        self._generation = 0
+        self._md: bytes | None = None
+        self._latest: Scan | None = None
+        self._scan_waiter: asyncio.Future[None] | None = None
+        self._last_scan_ns: int | None = None
+        self._sum_errors_seen = 0
+        self._restarts_in_a_row = 0
+        self._closed = False
+
+    # ----- lifecycle -------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start the reader task (idempotent)."""
+        if self._reader is None or self._reader.done():
+            self._reader = asyncio.get_running_loop().create_task(
+                self._read_loop(), name=f"urg-reader {self.port}"
+            )
+
+    async def connect(self) -> UrgInfo:
+        """The start-up sequence of ``scip2.md`` §6 (without the stream).
+
+        Raises:
+            LinkError: the sensor does not answer.
+            ProtocolError: it refuses a command or its parameters are incomplete.
+        """
+        self.start()
+        await self._quiet()
+        switch = await self._request(scip2_command())
+        if switch.status not in ("0", "0E", "00"):
+            raise ProtocolError(self._refused(switch))
+        reset = await self._request(simple_command("RS"))
+        if reset.status == "0E":  # stuck in time-adjust mode (§6 step 4)
+            await self._request(tm_command(2))
+            reset = await self._request(simple_command("RS"))
+        self._check(reset)
+        self._unwrap.reset()
+        self._sensor_clock.reset()
+        version = await self._info("VV")
+        params = parse_params((await self._info("PP")).info)
+        status = await self._info("II")
+        self.params = params
+        self.info = UrgInfo(version.info, params, status.info)
+        if not params.amin_step <= self._s.first_step <= self._s.last_step <= params.amax_step:
+            msg = (
+                f"{self.port}: steps {self._s.first_step}-{self._s.last_step} outside the "
+                f"sensor's {params.amin_step}-{params.amax_step}"
+            )
+            raise ProtocolError(msg)
+        log.info("urg_info", port=self.port, info=self.info.summary)
+        return self.info
+
+    async def start_stream(self) -> None:
+        """Start MD streaming of every scan (10 Hz) until QT (§6 step 7)."""
+        self._generation = (self._generation % 9999) + 1
+        self._md = md_command(
+            self._s.first_step, self._s.last_step, 1, 0, 0, tag=f"g{self._generation}"
+        )
+        ack = await self._request(self._md)
+        self._check(ack)
+        self._last_scan_ns = self._clock.now_ns()
+        self._sum_errors_seen = self._parser.stats.sum_errors
+
+    async def _restart_stream(self, why: str) -> None:
+        """QT, drain, MD with a new tag (§6 items 3-5)."""
+        self.stats.restarts += 1
+        self._restarts_in_a_row += 1
+        if self._restarts_in_a_row > self._s.max_restarts:
+            msg = (
+                f"the laser on {self.port} sends no usable scans: "
+                f"{self._s.max_restarts} stream restarts in a row ({why})"
+            )
+            err = LinkError(msg)
+            self._fail(err)
+            raise err
+        log.warning("urg_restart", port=self.port, why=why, restarts=self.stats.restarts)
+        self._write(simple_command("QT"))
+        await self._quiet()
+        await self.start_stream()
+
+    async def close(self) -> None:
+        """Stop the stream and the laser (QT), stop the reader, close the port."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._error is None:
+            with contextlib.suppress(LinkError, ProtocolError, TimeoutError):
+                await self._request(simple_command("QT"), timeout_s=0.3)
+        if self._reader is not None:
+            self._reader.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await self._reader
+        with contextlib.suppress(LinkError, OSError):
+            await self._stream.close()
+        self._fail(LinkError(f"{self.port}: driver closed"))
+
+    async def reopen(self, max_wait_s: float = 30.0) -> UrgInfo:
+        """Re-open a vanished device with exponential back-off, start up and stream again.
+
+        Raises:
+            LinkError: closed, no opener, or the device did not come back in ``max_wait_s``.
+        """
+        if self._closed or self._opener is None:
+            msg = f"{self.port}: cannot re-open (closed, or no opener)"
+            raise LinkError(msg)
+        if self._reader is not None:
+            self._reader.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await self._reader
+        with contextlib.suppress(LinkError, OSError):
+            await self._stream.close()
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + max_wait_s
+        delay_s = self._s.reopen_backoff_s
+        while True:
+            try:
+                stream = await self._opener()
+                break
+            except LinkError as err:
+                if loop.time() + delay_s > deadline:
+                    msg = f"{self.port}: did not come back within {max_wait_s:g} s ({err})"
+                    raise LinkError(msg) from err
+                log.warning("urg_reopen_retry", port=self.port, error=str(err), wait_s=delay_s)
+                await asyncio.sleep(delay_s)
+                delay_s = min(delay_s * 2, self._s.reopen_backoff_max_s)
+        self._stream = stream
+        self._parser.reset()
+        self._error = None
+        self._latest = None
+        self._restarts_in_a_row = 0
+        self.stats.reopens += 1
+        info = await self.connect()
+        await self.start_stream()
+        return info
+
+    async def __aenter__(self) -> UrgDriver:
+        self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    # ----- requests --------------------------------------------------------------------
+
+    def _write(self, data: bytes) -> None:
+        try:
+            self._stream.write(data)
+        except LinkError as err:
+            self._fail(err)
+            raise
+        if self._tap is not None:
+            self._tap("w", self._clock.now_ns(), data)
+
+    async def _request(self, command: bytes, timeout_s: float | None = None) -> Reply:
+        """Send ``command`` and wait for the reply whose echo matches it."""
+        if self._error is not None:
+            raise self._error
+        future: asyncio.Future[Reply] = asyncio.get_running_loop().create_future()
+        entry = (command, future)
+        self._waiters.append(entry)
+        try:
+            self._write(command)
+            wait = timeout_s if timeout_s is not None else self._s.request_timeout_s
+            try:
+                return await asyncio.wait_for(future, wait)
+            except TimeoutError as err:
+                name = command.rstrip(b"\n").decode("ascii", "replace")
+                msg = f"no answer to {name} from the laser on {self.port} within {wait:g} s"
+                raise LinkError(msg) from err
+        finally:
+            with contextlib.suppress(ValueError):
+                self._waiters.remove(entry)
+
+    async def _info(self, cmd: str) -> InfoReply:
+        reply = await self._request(simple_command(cmd))
+        self._check(reply)
+        if not isinstance(reply, InfoReply):
+            msg = f"{self.port}: {cmd} answered without information lines"
+            raise ProtocolError(msg)
+        return reply
+
+    def _refused(self, reply: Reply) -> str:
+        return f"laser on {self.port}: {reply.echo} -> {reply.status} ({reply.message})"
+
+    def _check(self, reply: Reply) -> None:
+        if not reply.ok:
+            raise ProtocolError(self._refused(reply))
+
+    async def _quiet(self) -> None:
+        """Send QT, then wait for ~150 ms of silence (at most ``drain_max_s``), then forget."""
+        self._write(simple_command("QT"))
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self._s.drain_max_s
+        self._last_rx_ns = self._clock.now_ns()
+        while loop.time() < deadline:
+            silent_s = (self._clock.now_ns() - self._last_rx_ns) / NS_PER_S
+            if silent_s >= self._s.drain_silence_s:
+                break
+            await asyncio.sleep(self._s.drain_silence_s - silent_s)
+        self._parser.reset()
+
+    # ----- receiving -------------------------------------------------------------------
+
+    async def _read_loop(self) -> None:
+        try:
+            while True:
+                data = await self._stream.read()
+                t_ns = self._clock.now_ns()
+                self._last_rx_ns = t_ns
+                if self._tap is not None:
+                    self._tap("r", t_ns, data)
+                for reply in self._parser.feed(data):
+                    self._dispatch(reply, t_ns)
+        except LinkError as err:
+            self._fail(err)
+        except asyncio.CancelledError:
+            raise
+        except Exception as err:  # a bug: consumers must not wait forever
+            log.exception("urg_reader_crashed", port=self.port)
+            self._fail(LinkError(f"{self.port}: laser reader crashed: {err!r}"))
+
+    def _dispatch(self, reply: Reply, t_ns: int) -> None:
+        if isinstance(reply, ScanReply) and reply.status != "00":
+            self._on_stream_message(reply, t_ns)
+            return
+        for command, future in self._waiters:
+            if not future.done() and reply.answers(command):
+                future.set_result(reply)
+                return
+        if self._md is not None and reply.command in ("MD", "MS") and reply.answers(self._md):
+            self._on_stream_message(reply, t_ns)  # a stream error status (21-98)
+
+    def _on_stream_message(self, reply: Reply, t_ns: int) -> None:
+        if self._md is None or not reply.answers(self._md):
+            self.stats.stale_stream_scans += 1  # a scan of a stream we replaced
+            return
+        if reply.status != "99" or not isinstance(reply, ScanReply):
+            self.stats.stream_errors += 1
+            log.warning("urg_stream_error", port=self.port, status=reply.status)
+            self._last_scan_ns = None  # next_sample restarts the stream
+            self._wake()
+            return
+        self._on_scan(reply, t_ns)
+
+    def _on_scan(self, reply: ScanReply, t_ns: int) -> None:
+        p = self.params
+        sensor_ms = self._unwrap.unwrap(reply.timestamp_ms)
+        # The message leaves after its end step was measured (§3.3), then crosses USB: a
+        # constant delay no data can reveal (it is indistinguishable from the offset), so
+        # it is configured; the varying rest is what the envelope removes.
+        known_ns = p.step_offset_ns(reply.end_step) + int(self._s.transport_delay_s * NS_PER_S)
+        self._sensor_clock.observe(sensor_ms, t_ns, known_ns)
+        front_ns = self._sensor_clock.to_host_ns(sensor_ms) + p.step_offset_ns(p.afront_step)
+        values = np.asarray(reply.values, dtype=np.float64)
+        ranges = np.where((values >= p.dmin_mm) & (values <= p.dmax_mm), values / 1000.0, np.nan)
+        self.stats.scans += 1
+        if self._latest is not None:
+            self.stats.scans_dropped += 1
+        self._latest = Scan(
+            t_ns=front_ns, ranges_m=ranges, first_step=reply.start_step, seq=self.stats.scans
+        )
+        self._last_scan_ns = t_ns
+        self._sum_errors_seen = self._parser.stats.sum_errors
+        self._restarts_in_a_row = 0
+        self._wake()
+
+    def _wake(self) -> None:
+        waiter = self._scan_waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
+
+    def _fail(self, err: LinkError) -> None:
+        if self._error is None:
+            self._error = err
+        for _, future in self._waiters:
+            if not future.done():
+                future.set_exception(err)
+        self._wake()
+
+    # ----- the consumer's side ---------------------------------------------------------
+
+    @property
+    def error(self) -> LinkError | None:
+        """The error that ended the driver, if any."""
+        return self._error
+
+    async def next_scan(self, timeout_s: float | None = None) -> Scan:
+        """The newest scan (older ones not picked up are dropped and counted).
+
+        Restarts a stalled, erroring or checksum-failing stream on the way.
+
+        Raises:
+            LinkError: the device failed or vanished, or no scan within ``timeout_s``.
+        """
+        loop = asyncio.get_running_loop()
+        started = loop.time()
+        while self._latest is None:
+            if self._error is not None:
+                raise self._error
+            now = self._clock.now_ns()
+            sum_run = self._parser.stats.sum_errors - self._sum_errors_seen
+            if self._last_scan_ns is None:
+                await self._restart_stream("stream error status")
+                continue
+            stalled_s = (now - self._last_scan_ns) / NS_PER_S
+            if stalled_s >= self._s.stall_s:
+                self.stats.stalls += 1
+                await self._restart_stream(f"no scan for {stalled_s:.2f} s")
+                continue
+            if sum_run >= self._s.sum_error_run:
+                await self._restart_stream(f"{sum_run} checksum errors in a row")
+                continue
+            wait_s = self._s.stall_s - stalled_s
+            if timeout_s is not None:
+                left_s = timeout_s - (loop.time() - started)
+                if left_s <= 0:
+                    msg = f"no scan from the laser on {self.port} for {timeout_s:g} s"
+                    raise LinkError(msg)
+                wait_s = min(wait_s, left_s)
+            waiter = self._scan_waiter = loop.create_future()
+            timer = loop.call_later(max(wait_s, 0.001), _resolve, waiter)
+            try:
+                await waiter
+            finally:
+                timer.cancel()
+                self._scan_waiter = None
+        scan, self._latest = self._latest, None
+        return scan

@@ -1,0 +1,102 @@
+"""Height from the laser hat (SPEC §2-3, seed §K eq 26): robust, or no height at all.
+
+A mirror folds the steps ``laser.hat_steps`` (default 44-127) down to the floor. Each of
+them measures the slant distance to the floor; the height is
+
+    height = cos(pitch) * cos(roll) * range - hat_offset_m        (eq 26)
+
+with ``hat_offset_m`` the range the hat reads when the vehicle stands on the floor.
+
+Real hat beams fail in ways a plain median does not survive: error codes (already NaN
+here), a leg or a cable in the folded beam, the floor's edge near a wall, specular
+returns. The estimate therefore uses the median of the valid beams after rejecting
+outliers by the median absolute deviation, and reports *no height* (NaN with a reason)
+when too few beams are valid, when they disagree, when the attitude is unknown or too
+steep, or when the result is implausible. The altitude loop can hold on "no height"; it
+cannot hold on a wrong one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+MAD_TO_SIGMA = 1.4826  # for Gaussian noise, sigma = 1.4826 * MAD
+
+
+@dataclass(frozen=True, slots=True)
+class HatHeight:
+    """The height estimate of one scan: ``height_m`` is NaN when ``valid`` is False."""
+
+    height_m: float
+    valid: bool
+    beams_valid: int
+    beams_used: int
+    spread_m: float
+    reason: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class HatSettings:
+    """Thresholds of :func:`hat_height` (defaults suit the URG-04LX's 84 hat steps)."""
+
+    offset_m: float = 0.05
+    min_range_m: float = 0.02
+    max_range_m: float = 4.0
+    min_beams: int = 8
+    min_valid_fraction: float = 0.25
+    min_inlier_fraction: float = 0.5
+    inlier_gate_m: float = 0.03
+    max_spread_m: float = 0.05
+    max_tilt_rad: float = 0.6
+    min_height_m: float = -0.10
+
+
+def _none(reason: str, valid: int = 0, used: int = 0, spread: float = math.nan) -> HatHeight:
+    return HatHeight(math.nan, False, valid, used, spread, reason)
+
+
+def hat_height(
+    ranges_m: npt.NDArray[np.float64],
+    pitch_rad: float,
+    roll_rad: float,
+    settings: HatSettings | None = None,
+) -> HatHeight:
+    """Height above the floor from the hat beams' ranges (NaN = invalid beam), eq 26.
+
+    Args:
+        ranges_m: the ranges of the hat steps only, in metres; NaN for error codes.
+        pitch_rad: pitch at the time of the scan (SPEC §1).
+        roll_rad: roll at the time of the scan.
+        settings: thresholds; the defaults match the URG-04LX and the seed's hat.
+
+    Returns:
+        The height and how it was obtained, or an invalid result with the reason.
+    """
+    s = settings or HatSettings()
+    if not (math.isfinite(pitch_rad) and math.isfinite(roll_rad)):
+        return _none("attitude unknown")
+    if abs(pitch_rad) > s.max_tilt_rad or abs(roll_rad) > s.max_tilt_rad:
+        return _none("tilt too large for the hat")
+    r = np.asarray(ranges_m, dtype=np.float64)
+    good = r[np.isfinite(r) & (r >= s.min_range_m) & (r <= s.max_range_m)]
+    n_valid = int(good.size)
+    if n_valid < max(s.min_beams, math.ceil(s.min_valid_fraction * r.size)):
+        return _none(f"{n_valid} of {r.size} hat beams valid", n_valid)
+    median = float(np.median(good))
+    mad = float(np.median(np.abs(good - median)))
+    gate = max(3.0 * MAD_TO_SIGMA * mad, s.inlier_gate_m)
+    inliers = good[np.abs(good - median) <= gate]
+    n_used = int(inliers.size)
+    if n_used < max(s.min_beams, math.ceil(s.min_inlier_fraction * n_valid)):
+        return _none(f"hat beams disagree ({n_used} of {n_valid} consistent)", n_valid, n_used)
+    spread = MAD_TO_SIGMA * float(np.median(np.abs(inliers - np.median(inliers))))
+    if spread > s.max_spread_m:
+        return _none(f"hat beams spread {spread:.3f} m", n_valid, n_used, spread)
+    height = math.cos(pitch_rad) * math.cos(roll_rad) * float(np.median(inliers)) - s.offset_m
+    if height < s.min_height_m:
+        return _none(f"implausible height {height:.3f} m", n_valid, n_used, spread)
+    return HatHeight(height, True, n_valid, n_used, spread)

@@ -1,0 +1,337 @@
+r"""SCIP 2.0 replies and the client's incremental reply parser (sans-I/O).
+
+:class:`ReplyParser` is fed whatever the port delivered and returns the replies those bytes
+completed (``protocols/scip2.md`` §2.2, §6 items 1-3):
+
+- bytes are split into lines at LF, partial lines are kept across reads, and a reply ends
+  at an empty line (``LF LF``);
+- within the lines before that empty line, the reply starts at the first line that looks
+  like an echo (two capital letters, printable ASCII) followed by a status line; lines in
+  front of it are counted as garbage. If a candidate fails, the next one is tried, so a
+  reply after garbage lines is still found;
+- every sum is checked: status, timestamp, each info line (with or without the ``;``)
+  and each data block. A reply with any bad sum is dropped whole and counted (SC-21);
+- a scan's blocks are joined before the values are split (SC-12), and the number of
+  values is checked against the echo's start, end and cluster, so a lost block is caught.
+
+Nothing fed to it raises: bad input only moves the counters in :attr:`ReplyParser.stats`.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from typing import Final
+
+from mkflight.urg.codec import (
+    BLOCK_CHARS,
+    SCIP2_COMMAND,
+    chars_per_value,
+    decode_value,
+    decode_values,
+    is_success,
+    status_message,
+    sum_char,
+    value_count,
+)
+
+MAX_LINE_BYTES: Final = 256  # the longest real line is ~70 bytes; longer is garbage
+MAX_REPLY_LINES: Final = 64  # a full MD scan has 35 lines; older lines beyond are garbage
+INFO_COMMANDS: Final = frozenset(("VV", "PP", "II"))
+
+_ECHO_RE: Final = re.compile(rb"[A-Z]{2}[ -~]{0,46}")
+_STATUS_RE: Final = re.compile(rb"[0-9A-Z]{2}")
+_SCAN_ECHO_RE: Final = re.compile(r"(G[DS]|M[DS])(\d{4})(\d{4})(\d{2})(?:(\d)(\d{2}))?(;.*)?")
+
+_SUM: Final = "sum"
+_MALFORMED: Final = "malformed"
+
+
+@dataclass(frozen=True, slots=True)
+class Reply:
+    """A reply without data: the echo (as sent, no LF) and the status (§2.2).
+
+    ``status`` is two characters, or ``"0"`` for the bare answer of a SCIP 1.1 sensor to
+    ``SCIP2.0`` (SC-01).
+    """
+
+    echo: str
+    status: str
+
+    @property
+    def command(self) -> str:
+        """``"SCIP2.0"`` or the two command letters (``"MD"``)."""
+        return SCIP2_COMMAND if self.echo.startswith(SCIP2_COMMAND) else self.echo[:2]
+
+    @property
+    def tag(self) -> str | None:
+        """The ``;string`` the command carried, without the ``;`` (§2.1), or None."""
+        _, sep, tag = self.echo.partition(";")
+        return tag if sep else None
+
+    @property
+    def ok(self) -> bool:
+        """The status means success for this command (see :func:`codec.is_success`)."""
+        return is_success(self.command, self.status)
+
+    @property
+    def message(self) -> str:
+        """The status in words (§4), e.g. ``"laser is off (send BM first)"``."""
+        return status_message(self.command, self.status)
+
+    def answers(self, request: bytes) -> bool:
+        r"""Whether this reply answers ``request`` (the command bytes sent, LF included).
+
+        The echo must equal the request without its terminator; a stream message of an
+        MD/MS request matches with the count digits ignored, since the sensor writes the
+        remaining count there (§3.2, §6 item 2).
+        """
+        sent = request.rstrip(b"\r\n").decode("ascii", errors="replace")
+        if self.echo == sent:
+            return True
+        if self.command not in ("MD", "MS") or self.status == "00":
+            return False
+        ours, _, our_tag = self.echo.partition(";")
+        theirs, _, their_tag = sent.partition(";")
+        return (
+            len(ours) == len(theirs) == 15
+            and ours[:13] == theirs[:13]
+            and our_tag == their_tag
+            and ours[13:].isdigit()
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class InfoReply(Reply):
+    """A VV/PP/II reply: its ``KEY:value`` lines as a dict (§3). Unknown keys are kept."""
+
+    info: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True)
+class TimeReply(Reply):
+    """A ``TM1`` reply: the sensor's 24-bit millisecond timer (§3)."""
+
+    timestamp_ms: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class ScanReply(Reply):
+    """One scan: a GD/GS reply (status 00) or an MD/MS stream message (status 99).
+
+    ``values[j]`` is the raw value in mm of steps ``start_step + j*cluster`` onwards
+    (error codes < 20 included: convert with :func:`mkflight.urg.units.ranges_m`).
+    ``timestamp_ms`` is the 24-bit sensor time of step 0 (§3.3). ``remaining`` is the
+    count the sensor wrote into an MD/MS echo (scans still to come, §3.2), else None.
+    """
+
+    timestamp_ms: int = 0
+    values: tuple[int, ...] = ()
+    start_step: int = 0
+    end_step: int = 0
+    cluster: int = 1
+    remaining: int | None = None
+
+
+AnyReply = Reply | InfoReply | TimeReply | ScanReply
+
+
+@dataclass(slots=True)
+class ParserStats:
+    """Counters of everything the parser saw; the driver reports them (STYLE §2)."""
+
+    bytes_in: int = 0
+    replies: int = 0
+    sum_errors: int = 0
+    malformed: int = 0
+    garbage_lines: int = 0
+    overflows: int = 0
+
+    @property
+    def dropped(self) -> int:
+        """Replies dropped whole: a bad sum or a malformed body."""
+        return self.sum_errors + self.malformed
+
+
+class ReplyParser:
+    """Incremental client decoder of SCIP 2.0 replies (see the module docstring)."""
+
+    def __init__(self) -> None:
+        self.stats = ParserStats()
+        self._partial = bytearray()  # an unfinished line
+        self._lines: list[bytes] = []  # the complete lines of the reply being collected
+        self._skipping = False  # inside an over-long line: drop bytes until LF
+
+    @property
+    def buffered(self) -> int:
+        """Bytes held until more data arrives (an unfinished line or reply)."""
+        return len(self._partial) + sum(len(line) + 1 for line in self._lines)
+
+    def reset(self) -> None:
+        """Forget a partial reply (after the port was re-opened), counting its lines."""
+        self.stats.garbage_lines += len(self._lines) + bool(self._partial)
+        self._partial.clear()
+        self._lines.clear()
+        self._skipping = False
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[Reply]:
+        """Consume ``data`` and return the complete, valid replies it finished."""
+        data = bytes(data)
+        stats = self.stats
+        stats.bytes_in += len(data)
+        out: list[Reply] = []
+        pos = 0
+        while True:
+            nl = data.find(b"\n", pos)
+            if nl < 0:
+                if not self._skipping:
+                    self._partial += data[pos:]
+                    if len(self._partial) > MAX_LINE_BYTES:
+                        stats.overflows += 1
+                        self._partial.clear()
+                        self._skipping = True
+                return out
+            chunk = data[pos:nl]
+            pos = nl + 1
+            if self._skipping:
+                self._skipping = False  # the end of an over-long line
+                continue
+            if self._partial:
+                self._partial += chunk
+                line = bytes(self._partial)
+                self._partial.clear()
+            else:
+                line = chunk
+            if len(line) > MAX_LINE_BYTES:
+                stats.overflows += 1
+            elif line:
+                self._lines.append(line)
+                if len(self._lines) > MAX_REPLY_LINES:
+                    del self._lines[0]
+                    stats.garbage_lines += 1
+            elif self._lines:
+                lines, self._lines = self._lines, []
+                reply = self._finish(lines)
+                if reply is not None:
+                    out.append(reply)
+
+    def _finish(self, lines: list[bytes]) -> Reply | None:
+        """Find the reply in the lines of one ``LF LF``-terminated block, or count them."""
+        stats = self.stats
+        failure: tuple[int, str] | None = None
+        for i in range(len(lines) - 1):
+            if not _ECHO_RE.fullmatch(lines[i]):
+                continue
+            result = _parse(lines, i)
+            if isinstance(result, Reply):
+                stats.garbage_lines += i
+                stats.replies += 1
+                return result
+            if result is not None and failure is None:
+                failure = (i, result)
+        if failure is None:
+            stats.garbage_lines += len(lines)
+            return None
+        start, kind = failure
+        stats.garbage_lines += start
+        if kind == _SUM:
+            stats.sum_errors += 1
+        else:
+            stats.malformed += 1
+        return None
+
+
+def _parse(lines: list[bytes], i: int) -> Reply | str | None:
+    """Parse the reply whose echo is ``lines[i]``.
+
+    Returns:
+        The reply; ``"sum"`` or ``"malformed"`` if it is a reply but a bad one; None if
+        ``lines[i + 1]`` is not a status line (so ``lines[i]`` is no echo).
+    """
+    echo = lines[i].decode("ascii")
+    status_raw = lines[i + 1]
+    body = lines[i + 2 :]
+    if echo == SCIP2_COMMAND and status_raw == b"0":
+        return Reply(echo, "0") if not body else _MALFORMED
+    if len(status_raw) != 3 or not _STATUS_RE.fullmatch(status_raw[:2]):
+        return None
+    if sum_char(status_raw[:2]) != status_raw[2]:
+        return _SUM
+    status = status_raw[:2].decode("ascii")
+    command = echo[:2]
+    chars = chars_per_value(command)
+    if chars is not None:
+        expects_data = status == ("00" if command[0] == "G" else "99")
+        if body:
+            return _parse_scan(echo, status, body, chars)
+        return _MALFORMED if expects_data else Reply(echo, status)
+    if not body:
+        return Reply(echo, status)
+    if command in INFO_COMMANDS:
+        return _parse_info(echo, status, body)
+    for line in body:
+        if len(line) < 2 or sum_char(line[:-1]) != line[-1]:
+            return _SUM
+    if command == "TM" and len(body) == 1 and len(body[0]) == 5:
+        return TimeReply(echo, status, decode_value(body[0][:4]))
+    return Reply(echo, status)
+
+
+def _parse_info(echo: str, status: str, body: list[bytes]) -> InfoReply | str:
+    """``KEY:value;S`` lines; S covers ``KEY:value``, or the ``;`` too (§2.3)."""
+    info: dict[str, str] = {}
+    for line in body:
+        if len(line) < 2:
+            return _MALFORMED
+        total = line[-1]
+        if line[-2:-1] == b";":
+            text = line[:-2]
+            good = sum_char(text) == total or sum_char(line[:-1]) == total
+        else:
+            text = line[:-1]
+            good = sum_char(text) == total
+        if not good:
+            return _SUM
+        key, sep, value = text.decode("latin-1").partition(":")
+        if sep:
+            info[key] = value  # a line without ':' is an unknown extra: ignored (§6 item 9)
+    return InfoReply(echo, status, info)
+
+
+def _parse_scan(echo: str, status: str, body: list[bytes], chars: int) -> ScanReply | str:
+    """Timestamp line, then data blocks joined before splitting the values (§2.5, §3.2)."""
+    stamp = body[0]
+    if len(stamp) != 5:
+        return _MALFORMED
+    if sum_char(stamp[:4]) != stamp[4]:
+        return _SUM
+    joined = bytearray()
+    last = len(body) - 1
+    for k, block in enumerate(body[1:], start=1):
+        size = len(block) - 1
+        if not 1 <= size <= BLOCK_CHARS or (k < last and size != BLOCK_CHARS):
+            return _MALFORMED
+        if sum_char(block[:-1]) != block[-1]:
+            return _SUM
+        joined += block[:-1]
+    m = _SCAN_ECHO_RE.fullmatch(echo)
+    if m is None or (m[5] is None) != (echo[0] == "G"):
+        return _MALFORMED
+    values = decode_values(joined, chars)
+    try:
+        timestamp_ms = decode_value(stamp[:4])
+    except ValueError:
+        return _MALFORMED
+    start, end, cluster = int(m[2]), int(m[3]), int(m[4])
+    if values is None or end < start or len(values) != value_count(start, end, cluster):
+        return _MALFORMED
+    return ScanReply(
+        echo,
+        status,
+        timestamp_ms=timestamp_ms,
+        values=tuple(values),
+        start_step=start,
+        end_step=end,
+        cluster=cluster,
+        remaining=int(m[6]) if m[6] is not None else None,
+    )
