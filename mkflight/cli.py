@@ -91,6 +91,43 @@ def build_parser() -> argparse.ArgumentParser:
     )
     info.add_argument("--json", action="store_true", help="one JSON object per sample and line")
     info.set_defaults(func=_run_mk_info)
+
+    laser = commands.add_parser("laser", help="the Hokuyo URG laser")
+    laser_commands = laser.add_subparsers(
+        dest="laser_command", metavar="COMMAND", parser_class=_Parser
+    )
+    laser_commands.required = True
+    scan = laser_commands.add_parser(
+        "scan",
+        parents=[config_opts],
+        help="print the sensor's identity and scans with the hat's height",
+        description="Start the URG (SCIP 2.0), print its identity, then N scans: the scan "
+        "steps' ranges and the height from the laser hat (SPEC §7).",
+    )
+    scan_where = scan.add_mutually_exclusive_group(required=True)
+    scan_where.add_argument("--port", metavar="DEV", help="serial device, e.g. /dev/ttyACM0")
+    scan_where.add_argument(
+        "--sim", action="store_true", help="use the built-in URG emulator on a pty"
+    )
+    scan.add_argument(
+        "--count", type=_count, default=5, metavar="N", help="scans to print (0: until Ctrl-C)"
+    )
+    scan.add_argument("--json", action="store_true", help="one JSON object per scan and line")
+    scan.set_defaults(func=_run_laser_scan)
+
+    match = commands.add_parser(
+        "scanmatch",
+        parents=[config_opts],
+        help="run the scan matcher over a recorded laser log",
+        description="Match every scan of a CARMEN log (FLASER/ROBOTLASER1 lines, plain or "
+        ".gz) and write 't x y theta' per scan in the log's own frame (SPEC §7).",
+    )
+    match.add_argument("log", metavar="LOG", help="the laser log")
+    match.add_argument(
+        "--odom", metavar="FILE", help="'t x y theta' odometry whose increments are the prior"
+    )
+    match.add_argument("-o", "--output", metavar="TRAJ", help="write here instead of stdout")
+    match.set_defaults(func=_run_scanmatch)
     return parser
 
 
@@ -102,6 +139,31 @@ def _run_mk_info(args: argparse.Namespace) -> int:
         sim=args.sim,
         count=args.count,
         as_json=args.json,
+        config_path=args.config,
+        overrides=args.overrides,
+    )
+
+
+def _run_laser_scan(args: argparse.Namespace) -> int:
+    from mkflight.commands.laser_scan import cmd_laser_scan
+
+    return cmd_laser_scan(
+        port=args.port,
+        sim=args.sim,
+        count=args.count,
+        as_json=args.json,
+        config_path=args.config,
+        overrides=args.overrides,
+    )
+
+
+def _run_scanmatch(args: argparse.Namespace) -> int:
+    from mkflight.commands.scanmatch import cmd_scanmatch
+
+    return cmd_scanmatch(
+        log=args.log,
+        odom=args.odom,
+        out=args.output,
         config_path=args.config,
         overrides=args.overrides,
     )

@@ -116,6 +116,26 @@ class ControlConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_
     land_detect_s: NonNegFloat = 1.0
 
 
+class ScanmatchConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """Point-to-line ICP and keyframes (``mkflight.scanmatch``: IcpParams, KeyframeMatcher)."""
+
+    max_iterations: Annotated[int, Meta(ge=1, le=100)] = 15
+    max_correspondence_m: Annotated[float, Meta(gt=0, le=5)] = 0.5
+    min_correspondence_m: Annotated[float, Meta(gt=0, le=5)] = 0.2
+    keep_fraction: Annotated[float, Meta(gt=0, le=1)] = 1.0
+    robust_scale_m: Annotated[float, Meta(ge=0, le=1)] = 0.05
+    step_tolerance_m: Annotated[float, Meta(gt=0, le=0.1)] = 1e-4
+    step_tolerance_rad: Annotated[float, Meta(gt=0, le=0.1)] = 1e-4
+    min_matches: Annotated[int, Meta(ge=3, le=10000)] = 20
+    min_matched_fraction: Annotated[float, Meta(ge=0, le=1)] = 0.1
+    max_rms_m: Annotated[float, Meta(gt=0, le=1)] = 0.05
+    degeneracy_threshold: Annotated[float, Meta(ge=0, le=1)] = 0.01
+    noise_floor: Annotated[float, Meta(ge=0, le=1)] = 0.2
+    max_points: Annotated[int, Meta(ge=0, le=100000)] = 0
+    keyframe_distance_m: Annotated[float, Meta(gt=0, le=5)] = 0.10
+    keyframe_angle_rad: Annotated[float, Meta(gt=0, le=3.2)] = 0.1745
+
+
 class SafetyConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """Failsafe thresholds (SPEC §5)."""
 
@@ -161,6 +181,7 @@ class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
     mk: MkConfig = msgspec.field(default_factory=MkConfig)
     laser: LaserConfig = msgspec.field(default_factory=LaserConfig)
     estimation: EstimationConfig = msgspec.field(default_factory=EstimationConfig)
+    scanmatch: ScanmatchConfig = msgspec.field(default_factory=ScanmatchConfig)
     control: ControlConfig = msgspec.field(default_factory=ControlConfig)
     safety: SafetyConfig = msgspec.field(default_factory=SafetyConfig)
     logging: LoggingConfig = msgspec.field(default_factory=LoggingConfig)
@@ -197,6 +218,9 @@ def _cross_checks(cfg: Config, source: str) -> None:
         raise ConfigError(msg)
     if cfg.control.takeoff_height_m > cfg.safety.max_height_m:
         msg = f"{source}: control.takeoff_height_m: above safety.max_height_m"
+        raise ConfigError(msg)
+    if cfg.scanmatch.min_correspondence_m > cfg.scanmatch.max_correspondence_m:
+        msg = f"{source}: scanmatch.min_correspondence_m: above max_correspondence_m"
         raise ConfigError(msg)
     if cfg.mk.reopen_backoff_s > cfg.mk.reopen_backoff_max_s:
         msg = f"{source}: mk.reopen_backoff_s: must not exceed mk.reopen_backoff_max_s"

@@ -4,6 +4,8 @@ Run: ``pip install -e '.[bench]' && python tools/bench.py`` (``--json`` for mach
 
 * ``codec``: MK frames encoded and decoded per second (ExternControl encode with its range
   checks; DebugOut streams through the incremental parser and the SI conversion).
+* ``scanmatch``: time per scan and relation errors on ``../shared/data/laser/`` beside CSM's
+  (``tools/bench_scanmatch.py``), and time per URG-size scan in unseen random rooms.
 * ``latency``: DebugOut arrival -> ExternControl on the wire, over a real pty pair. A
   child process poses as the FlightCtrl on the pty's master end: it writes a DebugOut frame and
   timestamps the moment the answering ExternControl frame can be read back. The host side
@@ -218,7 +220,7 @@ def summarize(values: list[float]) -> dict[str, float]:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", choices=("codec", "latency"), help="run one group")
+    parser.add_argument("--only", choices=("codec", "latency", "scanmatch"), help="run one group")
     parser.add_argument("--samples", type=int, default=400, help="latency samples per variant")
     parser.add_argument("--rounds", type=int, default=3, help="alternating rounds per variant")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -256,6 +258,10 @@ def main() -> int:
             }
             for suffix in ("", "+load")
         }
+    if args.only in (None, "scanmatch"):
+        import bench_scanmatch  # tools/bench_scanmatch.py, beside this file
+
+        result["scanmatch"] = bench_scanmatch.run()
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
@@ -278,6 +284,11 @@ def main() -> int:
                 f"  ratio mkflight/pyserial-asyncio ({case}): "
                 f"median {r['median']:.2f}, p99 {r['p99']:.2f}"
             )
+    if "scanmatch" in result:
+        import bench_scanmatch
+
+        print("Scan matching, per scan (datasets beside CSM's figures from the data README):")
+        print(bench_scanmatch.format_table(result["scanmatch"]))
     return 0
 
 

@@ -1,0 +1,222 @@
+"""Planar rigid transforms, scan-to-points conversion and the reference-scan line model.
+
+Everything is standard 2D math: x, y in metres, angles counter-clockwise from +x toward +y.
+SPEC's body frame (x forward, y right, yaw clockwise) is the same math written in
+``(x, y_right)`` coordinates, so a caller converts only at the sensor edge.
+
+A pose ``(x_m, y_m, theta_rad)`` is a transform: applied to a point ``p`` it gives
+``R(theta) p + (x, y)``. ``compose(a, b)`` is ``a (+) b`` (b expressed in a's frame, then in
+a's parent), ``between(a, b) = a^-1 (+) b`` -- the operators of Lu & Milios and of
+Kuemmerle et al.'s relation metric.
+
+The reference model follows the idea of PL-ICP (Censi 2008, "An ICP variant using a
+point-to-line metric"): the reference scan is a chain of short line pieces, and a point of
+the current scan is compared with the line of its nearest reference point. Unlike CSM,
+which takes the line through the two nearest raw reference points at every iteration,
+each reference point here carries a line fitted once per reference scan over a window of
+its scan-order neighbours (a local principal-component fit), and the fitted centroid
+replaces the noisy raw point. That costs a few tens of microseconds per keyframe, lets
+one k=1 KD-tree query per point suffice, and removes most of the range noise of the
+reference from every residual.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial import cKDTree
+
+FloatArray = npt.NDArray[np.float64]
+Pose = tuple[float, float, float]
+
+IDENTITY: Pose = (0.0, 0.0, 0.0)
+
+#: Half-widths (in beams) of the scan-order windows tried for each reference line, smallest
+#: first; a point takes the smallest window whose chord reaches ``min_line_length_m``.
+LINE_HALF_WINDOWS = (1, 2, 4, 8, 16)
+
+
+def wrap_angle(angle_rad: float) -> float:
+    """Wrap an angle to [-pi, pi)."""
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def compose(a: Pose, b: Pose) -> Pose:
+    """``a (+) b``: the pose ``b`` (given in the frame ``a``) expressed in ``a``'s parent frame."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return (a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], wrap_angle(a[2] + b[2]))
+
+
+def inverse(a: Pose) -> Pose:
+    """``a^-1``: the parent frame's origin expressed in the frame ``a``."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return (-c * a[0] - s * a[1], s * a[0] - c * a[1], wrap_angle(-a[2]))
+
+
+def between(a: Pose, b: Pose) -> Pose:
+    """``a^-1 (+) b``: the pose ``b`` expressed in the frame of ``a`` (a relative motion)."""
+    return compose(inverse(a), b)
+
+
+def is_finite_pose(p: Pose) -> bool:
+    """True when all three components are finite numbers."""
+    return math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])
+
+
+def transform_points(points_xy: FloatArray, pose: Pose) -> FloatArray:
+    """Apply ``pose`` to an (N, 2) array of points: ``R(theta) p + t``."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    rot = np.array([[c, s], [-s, c]])  # transposed rotation for row vectors
+    out: FloatArray = points_xy @ rot + np.array([pose[0], pose[1]])
+    return out
+
+
+def scan_to_points(
+    ranges_m: npt.ArrayLike,
+    angles_rad: npt.ArrayLike,
+    min_range_m: float = 0.02,
+    max_range_m: float = 5.6,
+) -> FloatArray:
+    """Cartesian points of the valid beams, in scan order, in the sensor frame.
+
+    Valid means finite and ``min_range_m <= r < max_range_m`` (SPEC §2: URG values below
+    20 mm are error codes, not distances). The caller chooses which beams to pass (e.g. only
+    ``laser.scan_steps`` for URG data, so the laser hat and the mirror edge never enter).
+
+    Args:
+        ranges_m: (N,) ranges in metres; NaN or out-of-range values are dropped.
+        angles_rad: (N,) beam angles, counter-clockwise from +x.
+        min_range_m: smallest valid range (inclusive).
+        max_range_m: largest valid range (exclusive).
+
+    Returns:
+        (M, 2) float64 array, M <= N; empty (0, 2) when nothing is valid or the inputs
+        do not have matching shapes.
+    """
+    r = np.asarray(ranges_m, dtype=np.float64).ravel()
+    a = np.asarray(angles_rad, dtype=np.float64).ravel()
+    if r.shape != a.shape:
+        return np.empty((0, 2))
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(r) & np.isfinite(a) & (r >= min_range_m) & (r < max_range_m)
+    r, a = r[ok], a[ok]
+    return np.stack((r * np.cos(a), r * np.sin(a)), axis=1)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ReferenceScan:
+    """A reference (keyframe) scan as fitted line pieces, built once and matched many times.
+
+    Attributes:
+        centers_xy: (M, 2) centroid of each fitted line piece (on the line).
+        normals_xy: (M, 2) unit normal of each line piece.
+        tree: KD-tree over ``centers_xy`` (one k=1 query per current point and iteration).
+        n_points: number of valid points the scan had before line fitting.
+    """
+
+    centers_xy: FloatArray
+    normals_xy: FloatArray
+    tree: cKDTree
+    n_points: int
+
+    @property
+    def n_lines(self) -> int:
+        """Number of usable line pieces."""
+        return int(self.centers_xy.shape[0])
+
+
+def build_reference(
+    points_xy: FloatArray,
+    *,
+    min_line_length_m: float = 0.12,
+    max_gap_m: float = 0.5,
+    max_line_rms_m: float = 0.03,
+    half_windows: tuple[int, ...] = LINE_HALF_WINDOWS,
+) -> ReferenceScan | None:
+    """Fit a local line to every point of a scan and index the lines in a KD-tree.
+
+    For each point and each candidate half-width ``w`` (smallest first) the points
+    ``i-w .. i+w`` in scan order are fitted by principal components (window sums from
+    cumulative sums: no Python loop over points). A window qualifies when its chord (first
+    to last point) is at least ``min_line_length_m`` (waived for the widest window) -- so
+    close, densely sampled walls get wide windows and the 1 cm range noise does not tilt
+    the normal -- no gap between
+    consecutive points exceeds ``max_gap_m`` (a jump edge), and both the RMS distance of
+    the points from the fitted line and the centre point's own distance from it are at
+    most ``max_line_rms_m`` (a corner or clutter).
+    Points with no qualifying window are dropped: they would give wrong normals.
+
+    Args:
+        points_xy: (N, 2) valid points in scan order (from :func:`scan_to_points`).
+        min_line_length_m: shortest chord of a fitting window.
+        max_gap_m: largest distance between consecutive points inside a window.
+        max_line_rms_m: largest RMS point-to-line distance of a window.
+        half_windows: the window half-widths tried, increasing.
+
+    Returns:
+        The reference, or None when fewer than 3 lines could be fitted.
+    """
+    pts = np.asarray(points_xy, dtype=np.float64)
+    n = int(pts.shape[0]) if pts.ndim == 2 and pts.shape[1:] == (2,) else 0
+    if n < 5 or not np.isfinite(pts).all():
+        return None
+    x, y = pts[:, 0], pts[:, 1]
+    zero = np.zeros(1)
+    cx = np.concatenate((zero, np.cumsum(x)))
+    cy = np.concatenate((zero, np.cumsum(y)))
+    cxx = np.concatenate((zero, np.cumsum(x * x)))
+    cxy = np.concatenate((zero, np.cumsum(x * y)))
+    cyy = np.concatenate((zero, np.cumsum(y * y)))
+    gaps = np.hypot(np.diff(x), np.diff(y))
+    cbig: FloatArray = np.concatenate((zero, np.cumsum(gaps > max_gap_m, dtype=np.float64)))
+
+    chosen = np.zeros(n, dtype=bool)
+    center = np.empty((n, 2))
+    normal = np.empty((n, 2))
+    max_var = max_line_rms_m * max_line_rms_m
+    for w in half_windows:
+        m = 2 * w + 1
+        if m > n:
+            break
+        lo = np.arange(0, n - 2 * w)  # window [lo, lo + m)
+        hi = lo + m
+        mid = lo + w
+        mx = (cx[hi] - cx[lo]) / m
+        my = (cy[hi] - cy[lo]) / m
+        sxx = (cxx[hi] - cxx[lo]) / m - mx * mx
+        sxy = (cxy[hi] - cxy[lo]) / m - mx * my
+        syy = (cyy[hi] - cyy[lo]) / m - my * my
+        half_tr = 0.5 * (sxx + syy)
+        disc = np.sqrt(np.maximum(0.25 * (sxx - syy) ** 2 + sxy * sxy, 0.0))
+        lam_min = half_tr - disc
+        chord = np.hypot(x[hi - 1] - x[lo], y[hi - 1] - y[lo])
+        no_jump = (cbig[hi - 1] - cbig[lo]) == 0
+        # The widest window needs no minimum chord: better a short line than none.
+        long_enough = chord >= min_line_length_m if w != half_windows[-1] else True
+        ok = long_enough & no_jump & (lam_min <= max_var) & ~chosen[mid]
+        # Direction of the largest principal axis; the normal is perpendicular to it.
+        phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+        # The window's own centre point must lie on the line too (not so at a corner).
+        off = np.abs(np.cos(phi) * (y[mid] - my) - np.sin(phi) * (x[mid] - mx))
+        ok &= off <= max_line_rms_m
+        if ok.any():
+            sel = mid[ok]
+            phi = phi[ok]
+            center[sel, 0] = mx[ok]
+            center[sel, 1] = my[ok]
+            normal[sel, 0] = -np.sin(phi)
+            normal[sel, 1] = np.cos(phi)
+            chosen[sel] = True
+    if int(chosen.sum()) < 3:
+        return None
+    centers = np.ascontiguousarray(center[chosen])
+    normals = np.ascontiguousarray(normal[chosen])
+    return ReferenceScan(
+        centers_xy=centers,
+        normals_xy=normals,
+        tree=cKDTree(centers, balanced_tree=False, compact_nodes=False),
+        n_points=n,
+    )

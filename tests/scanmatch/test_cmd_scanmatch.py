@@ -1,0 +1,142 @@
+"""``cmd_scanmatch`` end to end: a synthetic log in a tmp dir, and the shared synth set."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+from mkflight.commands.scanmatch import cmd_scanmatch, read_trajectory
+from mkflight.errors import ConfigError, ProtocolError
+from mkflight.sim.room import box_room, raycast
+
+SHARED = Path(__file__).resolve().parents[2].parent / "shared"
+STEP_RAD = 2.0 * math.pi / 1024.0
+
+
+def urg_line(ranges: np.ndarray, pose: tuple[float, float, float], t_s: float) -> str:
+    """A ROBOTLASER1 line shaped like the shared synthetic URG logs (steps 44..725)."""
+    values = " ".join("0.000" if not np.isfinite(r) else f"{r:.3f}" for r in ranges)
+    p = " ".join(f"{v:.6f}" for v in pose)
+    return (
+        f"ROBOTLASER1 0 {(44 - 384) * STEP_RAD:.6f} {681 * STEP_RAD:.6f} {STEP_RAD:.6f} 5.600 "
+        f"0.010 0 {ranges.shape[0]} {values} 0 {p} {p} 0 0 0 0 0 {t_s:.6f} synth {t_s:.6f}"
+    )
+
+
+def poses(n: int) -> list[tuple[float, float, float]]:
+    return [(0.02 * i, 0.01 * i, 0.005 * i) for i in range(n)]
+
+
+@pytest.fixture
+def synth_log(tmp_path: Path) -> Path:
+    room = box_room(6.0, 5.0, [(1.4, 0.9, 2.2, 1.5), (-1.7, -1.2, -1.3, -0.8)])
+    rng = np.random.default_rng(5)
+    angles = (np.arange(44, 726) - 384) * STEP_RAD
+    lines = ["# synthetic", "PARAM x 1 host 0"]
+    for i, pose in enumerate(poses(12)):
+        r = raycast(room, *pose, angles, 5.6) + rng.normal(0.0, 0.01, angles.shape)
+        r[:84] = 0.65  # the laser hat: must not be matched
+        r[84:106] = 0.03  # mirror-edge junk
+        lines.append(urg_line(r, pose, 100.0 + 0.1 * i))
+        if i == 5:
+            lines.append("ROBOTLASER1 0 1 2 3 broken")
+    path = tmp_path / "log.clf"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_end_to_end_on_a_synthetic_log(
+    synth_log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "traj.txt"
+    assert (
+        cmd_scanmatch(log=str(synth_log), odom=None, out=str(out), config_path=None, overrides=[])
+        == 0
+    )
+    err = capsys.readouterr().err
+    assert f"{synth_log}:9: malformed line skipped" in err
+    assert "12 scans" in err
+    assert "1 malformed" in err
+    t, est = read_trajectory(out)
+    assert len(t) == 12
+    assert np.allclose(t, 100.0 + 0.1 * np.arange(12), atol=1e-6)
+    truth = np.array(poses(12))
+    assert np.abs(est - truth).max() < 0.01
+    lines = out.read_text().splitlines()
+    assert lines[0] == "100.000000 0.000000 0.000000 0.000000"
+
+
+def test_stdout_and_odometry_prior(
+    synth_log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    odom = tmp_path / "odom.txt"
+    # Odometry 0.5 ms off the scan times (nearest within 1 ms), with one sample missing.
+    rows = [
+        f"{100.0 + 0.1 * i + 0.0005:.6f} {p[0]:.6f} {p[1]:.6f} {p[2]:.6f}"
+        for i, p in enumerate(poses(12))
+        if i != 7
+    ]
+    odom.write_text("# t x y theta\n" + "\n".join(rows) + "\n")
+    assert (
+        cmd_scanmatch(log=str(synth_log), odom=str(odom), out=None, config_path=None, overrides=[])
+        == 0
+    )
+    captured = capsys.readouterr()
+    lines = captured.out.splitlines()
+    assert len(lines) == 12
+    assert "2 scans without odometry within 1 ms" in captured.err  # scans 7 and 8
+    last = [float(v) for v in lines[-1].split()]
+    assert np.allclose(last[1:], poses(12)[-1], atol=0.01)
+
+
+def test_errors(tmp_path: Path) -> None:
+    with pytest.raises(ProtocolError, match="cannot read CARMEN log"):
+        cmd_scanmatch(
+            log=str(tmp_path / "none.clf"), odom=None, out=None, config_path=None, overrides=[]
+        )
+    empty = tmp_path / "empty.clf"
+    empty.write_text("ODOM 0 0 0 0 0 0 1 h 1\n")
+    with pytest.raises(ProtocolError, match="no FLASER or ROBOTLASER1"):
+        cmd_scanmatch(log=str(empty), odom=None, out=None, config_path=None, overrides=[])
+    with pytest.raises(ConfigError):
+        cmd_scanmatch(
+            log=str(empty), odom=None, out=None, config_path=None, overrides=["laser.nope=1"]
+        )
+    bad_odom = tmp_path / "odom.txt"
+    bad_odom.write_text("1 2 3\n")
+    with pytest.raises(ProtocolError, match=r"odom\.txt:1"):
+        read_trajectory(bad_odom)
+
+
+def _relpose_eval() -> ModuleType:
+    spec = importlib.util.spec_from_file_location(
+        "relpose_eval", SHARED / "tools" / "relpose_eval.py"
+    )
+    assert spec is not None
+    assert spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.skipif(not (SHARED / "data" / "laser" / "synth").exists(), reason="shared data absent")
+def test_first_100_scans_of_the_shared_hover_set(tmp_path: Path) -> None:
+    synth = SHARED / "data" / "laser" / "synth"
+    lines = (synth / "synth_roomA_hover.clf").read_text().splitlines()
+    short = tmp_path / "short.clf"
+    short.write_text("\n".join(lines[:102]) + "\n")  # 2 comment lines + 100 scans
+    out = tmp_path / "traj.txt"
+    assert (
+        cmd_scanmatch(log=str(short), odom=None, out=str(out), config_path=None, overrides=[]) == 0
+    )
+    rv = _relpose_eval()
+    t, p = rv.load_traj(str(out))
+    score = rv.evaluate(t, p, rv.load_relations(str(synth / "synth_roomA_hover.relations")))
+    assert score["matched"] > 150
+    assert score["trans_mean_m"] < 0.0055  # CSM's figure on the whole set
+    assert score["rot_mean_rad"] < 0.0037
