@@ -14,8 +14,9 @@ coordinates, so a caller that keeps y right and clockwise angles gets consistent
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -110,6 +111,11 @@ def random_room(
             hx, hy = float(rng.uniform(0.15, 0.4)), float(rng.uniform(0.15, 0.4))  # box
         parts.append(rect_walls((cx - hx, cy - hy, cx + hx, cy + hy)))
     return Room(np.vstack(parts))
+
+
+def room_caster(room: Room) -> Callable[..., FloatArray]:
+    """``raycast`` bound to ``room``: the ray caster a URG scene takes."""
+    return functools.partial(raycast, room)
 
 
 def raycast(

@@ -90,40 +90,6 @@ class FixedRanges:
         return np.array([get(int(s), self.default_mm) for s in steps], dtype=np.int64)
 
 
-class WallsCaster:
-    """A plain ray caster over wall segments (rows ``x1 y1 x2 y2``, m): a :class:`RayCaster`.
-
-    For tests and for rooms built by hand; the simulator's rooms come with their own.
-    """
-
-    def __init__(self, walls_m: npt.ArrayLike) -> None:
-        """Keep the walls as an n x 4 array."""
-        self.walls_m = np.asarray(walls_m, dtype=np.float64).reshape(-1, 4)
-
-    def __call__(
-        self, x_m: float, y_m: float, theta_rad: float, angles_rad: FloatArray, max_range_m: float
-    ) -> FloatArray:
-        """Nearest hit along each beam within ``max_range_m``, else NaN."""
-        a = theta_rad + np.asarray(angles_rad, dtype=np.float64)
-        dx, dy = np.cos(a)[:, None], np.sin(a)[:, None]
-        x1, y1, x2, y2 = (self.walls_m[:, i][None, :] for i in range(4))
-        ex, ey = x2 - x1, y2 - y1
-        denom = dx * ey - dy * ex
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = ((x1 - x_m) * ey - (y1 - y_m) * ex) / denom
-            u = ((x1 - x_m) * dy - (y1 - y_m) * dx) / denom
-        hit = (np.abs(denom) > 1e-12) & (t > 0) & (u >= 0) & (u <= 1) & (t <= max_range_m)
-        best = np.where(hit, t, np.inf).min(axis=1)
-        return np.where(np.isfinite(best), best, np.nan)
-
-
-def box_walls(length_m: float, width_m: float) -> FloatArray:
-    """Four walls of a ``length x width`` box centred on the origin (standard 2-D frame)."""
-    hx, hy = length_m / 2, width_m / 2
-    corners = [(-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy)]
-    return np.array([(*corners[i], *corners[(i + 1) % 4]) for i in range(4)], dtype=np.float64)
-
-
 class RoomScene:
     """A URG in a room at a settable pose: a :class:`~mkflight.sim.urg.RangeSource`."""
 

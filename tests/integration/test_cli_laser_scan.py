@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from mkflight.io.pty import PtyDevice
-from mkflight.sim.urg_scene import RoomScene, ScenePose, WallsCaster, box_walls
+from mkflight.sim.room import box_room, room_caster
+from mkflight.sim.urg_scene import RoomScene, ScenePose
 from mkflight.sim.urg_server import UrgEmulator
 
 from .test_cli_mk_info import error_lines, run_cli
@@ -22,7 +23,7 @@ KEYS = {"t", "angle_min_rad", "angle_increment_rad", "ranges_m", "height_m"}
 
 @pytest.fixture
 async def emulator() -> AsyncIterator[UrgEmulator]:
-    scene = RoomScene(WallsCaster(box_walls(6.0, 4.0)), pose=POSE, seed=2)
+    scene = RoomScene(room_caster(box_room(6.0, 4.0)), pose=POSE, seed=2)
     async with UrgEmulator(scene) as emu:
         yield emu
 

@@ -15,7 +15,8 @@ import pytest
 from mkflight.errors import LinkError
 from mkflight.io.serial import open_serial
 from mkflight.io.stream import ByteStream
-from mkflight.sim.urg_scene import RoomScene, ScenePose, WallsCaster, box_walls
+from mkflight.sim.room import box_room, room_caster
+from mkflight.sim.urg_scene import RoomScene, ScenePose
 from mkflight.sim.urg_server import UrgEmulator
 from mkflight.urg.driver import UrgDriver, UrgSettings
 from mkflight.urg.hat import hat_height
@@ -26,7 +27,7 @@ POSE = ScenePose(x_m=0.5, y_m=-0.3, yaw_rad=0.1, height_m=0.6)
 
 @pytest.fixture
 async def emulator(tmp_path: Path) -> AsyncIterator[UrgEmulator]:
-    scene = RoomScene(WallsCaster(box_walls(6.0, 4.0)), pose=POSE, seed=5)
+    scene = RoomScene(room_caster(box_room(6.0, 4.0)), pose=POSE, seed=5)
     async with UrgEmulator(scene, link=tmp_path / "urg0") as emu:
         yield emu
 

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from mkflight.config import LaserConfig
+from mkflight.sim.room import box_room, room_caster
 from mkflight.sim.urg import UrgModel
-from mkflight.sim.urg_scene import FixedRanges, RoomScene, ScenePose, WallsCaster, box_walls
+from mkflight.sim.urg_scene import FixedRanges, RoomScene, ScenePose
 from mkflight.urg.codec import gd_command, md_command, scip2_command, simple_command, tm_command
 from mkflight.urg.replies import InfoReply, Reply, ReplyParser, ScanReply
 from mkflight.urg.units import URG_04LX, ranges_m
@@ -263,7 +264,7 @@ def scene_scan(scene: RoomScene, steps: range) -> list[float]:
 
 def test_scene_in_a_box_room_with_yaw_and_position() -> None:
     # 8 m along x, 4 m along the room's y (left); the vehicle faces +x.
-    scene = RoomScene(WallsCaster(box_walls(8, 4)), noise_m=0.0, error_fraction=0.0)
+    scene = RoomScene(room_caster(box_room(8, 4)), noise_m=0.0, error_fraction=0.0)
     front, left = 384, 640  # body angle 0 and -90 deg (to the left)
     assert scene_scan(scene, range(front, front + 1)) == [4.0]
     assert scene_scan(scene, range(left, left + 1)) == pytest.approx([2.0], abs=0.002)
@@ -277,7 +278,7 @@ def test_scene_in_a_box_room_with_yaw_and_position() -> None:
 
 def test_scene_hat_edge_and_noise() -> None:
     pose = ScenePose(height_m=0.6, roll_rad=0.1, pitch_rad=-0.2)
-    scene = RoomScene(WallsCaster(box_walls(8, 4)), pose=pose, seed=3)
+    scene = RoomScene(room_caster(box_room(8, 4)), pose=pose, seed=3)
     raw = scene.ranges_mm(0, np.arange(44, 726))
     hat = raw[: 127 - 44 + 1] / 1000.0
     expected = (0.6 + 0.05) / (np.cos(0.1) * np.cos(0.2))
@@ -285,15 +286,15 @@ def test_scene_hat_edge_and_noise() -> None:
     assert 0.005 < float(np.std(hat)) < 0.015
     edge = raw[128 - 44 : 150 - 44]
     assert all(v == 0 or 30 <= v <= 80 for v in edge)
-    again = RoomScene(WallsCaster(box_walls(8, 4)), pose=pose, seed=3)
+    again = RoomScene(room_caster(box_room(8, 4)), pose=pose, seed=3)
     assert np.array_equal(again.ranges_mm(0, np.arange(44, 726)), raw)
 
 
 def test_scene_tilt_stretches_wall_ranges_and_far_walls_read_0() -> None:
-    level = RoomScene(WallsCaster(box_walls(20, 4)), noise_m=0.0, error_fraction=0.0)
+    level = RoomScene(room_caster(box_room(20, 4)), noise_m=0.0, error_fraction=0.0)
     assert level.ranges_mm(0, np.array([384]))[0] == 0  # 10 m > DMAX
     pitched = RoomScene(
-        WallsCaster(box_walls(20, 4)),
+        room_caster(box_room(20, 4)),
         pose=ScenePose(height_m=1.0, pitch_rad=0.1),
         noise_m=0.0,
         error_fraction=0.0,
@@ -301,7 +302,7 @@ def test_scene_tilt_stretches_wall_ranges_and_far_walls_read_0() -> None:
     left = pitched.ranges_mm(0, np.array([640]))[0] / 1000.0
     assert left == pytest.approx(2.0, abs=0.002)  # a side beam is not tilted by pitch
     rolled = RoomScene(
-        WallsCaster(box_walls(20, 4)),
+        room_caster(box_room(20, 4)),
         pose=ScenePose(height_m=1.0, roll_rad=-0.1),  # left side down
         noise_m=0.0,
         error_fraction=0.0,
@@ -312,13 +313,13 @@ def test_scene_tilt_stretches_wall_ranges_and_far_walls_read_0() -> None:
 
 def test_scene_errors_and_motion_during_the_sweep() -> None:
     laser = LaserConfig(hat_steps=(44, 60), scan_steps=(61, 725))
-    scene = RoomScene(WallsCaster(box_walls(8, 8)), laser=laser, error_fraction=0.05, seed=1)
+    scene = RoomScene(room_caster(box_room(8, 8)), laser=laser, error_fraction=0.05, seed=1)
     raw = scene.ranges_mm(0, np.arange(61, 726))
     codes = raw[(raw > 0) & (raw < 20)]
     assert 10 < codes.size < 70
     assert set(codes.tolist()) <= {1, 2, 7}
     moving = RoomScene(
-        WallsCaster(box_walls(8, 8)),
+        room_caster(box_room(8, 8)),
         pose=lambda t_ns: ScenePose(x_m=t_ns / 1e8),  # 1 m per 100 ms, forward
         noise_m=0.0,
         error_fraction=0.0,

@@ -19,7 +19,8 @@ import pytest
 
 from mkflight.errors import LinkError
 from mkflight.io.serial import SerialStream, open_serial
-from mkflight.sim.urg_scene import RoomScene, ScenePose, WallsCaster, box_walls
+from mkflight.sim.room import box_room, room_caster
+from mkflight.sim.urg_scene import RoomScene, ScenePose
 from mkflight.sim.urg_server import UrgEmulator
 from mkflight.urg.codec import md_command, scip2_command, simple_command
 from mkflight.urg.replies import InfoReply, Reply, ReplyParser, ScanReply
@@ -85,7 +86,7 @@ async def read_until_closed(stream: SerialStream, timeout_s: float = 2.0) -> Non
 
 
 def room_scene() -> RoomScene:
-    return RoomScene(WallsCaster(box_walls(6, 5)), pose=ScenePose(height_m=0.5), seed=2)
+    return RoomScene(room_caster(box_room(6, 5)), pose=ScenePose(height_m=0.5), seed=2)
 
 
 @pytest.fixture
