@@ -16,12 +16,12 @@ import contextlib
 import functools
 import json
 import math
-import signal
 import time
 from collections.abc import AsyncIterator
 
 import numpy as np
 
+from mkflight.commands.interrupt import next_or_stop, stop_on_signals
 from mkflight.config import Config, load_config
 from mkflight.io.serial import open_serial
 from mkflight.msgs import Scan
@@ -97,11 +97,7 @@ async def _port(port: str | None, sim: bool, cfg: Config) -> AsyncIterator[str]:
 
 
 async def _laser_scan(port: str | None, sim: bool, count: int, as_json: bool, cfg: Config) -> int:
-    loop = asyncio.get_running_loop()
-    stop = asyncio.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError, RuntimeError):
-            loop.add_signal_handler(sig, stop.set)
+    stop = stop_on_signals()
     t0_ns = time.monotonic_ns()
     async with _port(port, sim, cfg) as path:
         stream = await open_serial(path, URG_BAUDRATE)
@@ -113,18 +109,10 @@ async def _laser_scan(port: str | None, sim: bool, count: int, as_json: bool, cf
             await driver.start_stream()
             printed = 0
             while count == 0 or printed < count:
-                next_scan = asyncio.ensure_future(driver.next_scan(timeout_s=2.0))
-                stopped = asyncio.ensure_future(stop.wait())
-                done, _ = await asyncio.wait(
-                    {next_scan, stopped}, return_when=asyncio.FIRST_COMPLETED
-                )
-                if next_scan not in done:
-                    next_scan.cancel()
-                    with contextlib.suppress(asyncio.CancelledError, Exception):
-                        await next_scan
+                scan = await next_or_stop(driver.next_scan(timeout_s=2.0), stop)
+                if scan is None:
                     break
-                stopped.cancel()
-                row, ranges = scan_row(next_scan.result(), driver.params, cfg, t0_ns)
+                row, ranges = scan_row(scan, driver.params, cfg, t0_ns)
                 print(json.dumps(row) if as_json else _summary_line(row, ranges), flush=True)
                 printed += 1
     return 0

@@ -10,11 +10,11 @@ import asyncio
 import contextlib
 import json
 import math
-import signal
 import sys
 from collections.abc import AsyncIterator
 
 from mkflight.clock import MonotonicClock
+from mkflight.commands.interrupt import next_or_stop, stop_on_signals
 from mkflight.config import Config, load_config
 from mkflight.errors import LinkError
 from mkflight.io.serial import open_serial
@@ -92,11 +92,7 @@ async def _port(port: str | None, sim: bool, cfg: Config) -> AsyncIterator[str]:
 
 
 async def _mk_info(port: str | None, sim: bool, count: int, as_json: bool, cfg: Config) -> int:
-    loop = asyncio.get_running_loop()
-    stop = asyncio.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError, RuntimeError):
-            loop.add_signal_handler(sig, stop.set)
+    stop = stop_on_signals()
     clock = MonotonicClock()
     t0_ns = clock.now_ns()
     async with _port(port, sim, cfg) as path:
@@ -117,19 +113,8 @@ async def _mk_info(port: str | None, sim: bool, count: int, as_json: bool, cfg: 
             printed = 0
             timeout_s = cfg.mk.answer_timeout_s
             while count == 0 or printed < count:
-                next_sample = asyncio.ensure_future(link.next_sample(timeout_s))
-                stopped = asyncio.ensure_future(stop.wait())
-                done, _ = await asyncio.wait(
-                    {next_sample, stopped}, return_when=asyncio.FIRST_COMPLETED
-                )
-                if next_sample not in done:
-                    next_sample.cancel()
-                    with contextlib.suppress(asyncio.CancelledError, LinkError):
-                        await next_sample
-                    break
-                stopped.cancel()
                 try:
-                    sample = next_sample.result()
+                    sample = await next_or_stop(link.next_sample(timeout_s), stop)
                 except LinkError as err:
                     if link.stats.samples == 0 and link.error is None:
                         msg = (
@@ -138,6 +123,8 @@ async def _mk_info(port: str | None, sim: bool, count: int, as_json: bool, cfg: 
                         )
                         raise LinkError(msg) from err
                     raise
+                if sample is None:
+                    break
                 row = sample_row(sample, t0_ns)
                 line = json.dumps(row) if as_json else _format_row(row)
                 print(line, flush=True)

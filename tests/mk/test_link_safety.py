@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator
 
 import pytest
 
@@ -17,20 +16,7 @@ from mkflight.mk.messages import DebugOut, ExternControl
 from mkflight.mk.outbox import wire_s
 from mkflight.mk.units import DEFAULT_CALIBRATION
 
-from .test_link import FAST, MK08, FakeFc, _until
-
-
-@pytest.fixture
-async def pair() -> AsyncIterator[tuple[MkLink, FakeFc]]:
-    host, device = memory_pair("host", "fc")
-    fc = FakeFc(device)
-    task = asyncio.create_task(fc.run())
-    link = MkLink(host, FAST, DEFAULT_CALIBRATION)
-    yield link, fc
-    await link.close(release=False)
-    task.cancel()
-    with contextlib.suppress(asyncio.CancelledError):
-        await task
+from .fakes import FAST, MK08, FakeFc, _until
 
 
 def is_release(frame: Frame) -> bool:
