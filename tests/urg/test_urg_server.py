@@ -15,6 +15,7 @@ from collections.abc import AsyncIterator
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 import pytest
 
 from mkflight.errors import LinkError
@@ -210,3 +211,98 @@ async def test_vanish_fails_the_client_and_replug_restarts_the_sensor(
         await again.scans(1)
     finally:
         await stream.close()
+
+
+async def test_replug_without_power_cycle_keeps_the_sensor_running(
+    emu: UrgEmulator, client: Client
+) -> None:
+    await handshake(client)
+    assert (await client.request(FULL_MD)).ok
+    await client.scans(1)
+    emu.vanish()
+    emu.replug(power_cycle=False)  # a separately powered URG-04LX
+    stream = await open_serial(emu.path, BAUD)
+    try:
+        assert emu.model.power_ups == 0
+        assert emu.model.streaming
+        await Client(stream).scans(1)  # still SCIP 2.0 and streaming: no command needed
+    finally:
+        await stream.close()
+
+
+async def test_usb_delay_can_be_changed_while_serving(emu: UrgEmulator, client: Client) -> None:
+    await handshake(client)
+    emu.usb_delay_s = 0.25
+    assert emu.usb_delay_s == 0.25
+    assert emu.model.delivery_delay_ns == 250_000_000
+    t0 = time.monotonic_ns()
+    assert (await client.request(simple_command("VV"))).ok  # answered at once, then USB
+    assert (time.monotonic_ns() - t0) / 1e9 >= 0.25
+
+
+class FailingScene:
+    """The room's ranges until told to fail; then every scan raises (a broken simulation)."""
+
+    def __init__(self) -> None:
+        self.scene = room_scene()
+        self.fail = False
+
+    def ranges_mm(self, t_ns: int, steps: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+        if self.fail:
+            msg = "the simulation broke"
+            raise ValueError(msg)
+        return self.scene.ranges_mm(t_ns, steps)
+
+
+async def test_a_task_crash_is_raised_by_wait_for_and_stop(tmp_path: Path) -> None:
+    source = FailingScene()
+    emu = UrgEmulator(source, link=tmp_path / "urg")
+    await emu.start()
+    stream = await open_serial(emu.path, BAUD)
+    try:
+        client = Client(stream)
+        await handshake(client)
+        assert (await client.request(FULL_MD)).ok
+        await client.scans(1)
+        source.fail = True  # the next scan is measured in a task: it crashes
+        with pytest.raises(RuntimeError, match="urg: emulator task crashed") as info:
+            await emu.wait_for(lambda m: False, timeout_s=30.0)  # raised at once, no timeout
+        assert isinstance(info.value.__cause__, ValueError)
+        assert emu.error is info.value.__cause__
+        with pytest.raises(RuntimeError, match="crashed"):  # and on every later call
+            await emu.wait_for(lambda m: True)
+    finally:
+        await stream.close()
+        with pytest.raises(ValueError, match="the simulation broke"):
+            await emu.stop()
+    assert not (tmp_path / "urg").exists()  # cleaned up before raising
+    await emu.stop()  # raised once
+
+
+async def test_a_task_crash_is_raised_when_the_context_exits(tmp_path: Path) -> None:
+    source = FailingScene()
+
+    async def serve(*, catch: bool) -> None:
+        source.fail = False
+        async with UrgEmulator(source, link=tmp_path / "urg") as emu:
+            stream = await open_serial(emu.path, BAUD)
+            try:
+                client = Client(stream)
+                await handshake(client)
+                source.fail = True
+                client.stream.write(FULL_MD)  # its first scan crashes a task
+                if catch:
+                    with pytest.raises(RuntimeError, match="crashed"):
+                        await emu.wait_for(lambda m: m.scans_sent > 0)
+                else:
+                    await emu.wait_for(lambda m: m.scans_sent > 0)
+            finally:
+                await stream.close()
+
+    with pytest.raises(ValueError, match="the simulation broke"):
+        await serve(catch=True)  # the body ended normally: the exit raises the crash
+    with pytest.raises(RuntimeError, match="crashed") as info:
+        await serve(catch=False)  # the body raised: its exception wins, with a note
+    assert info.value.__notes__ == [
+        "urg: emulator task crashed: ValueError('the simulation broke')"
+    ]
