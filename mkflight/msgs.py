@@ -61,3 +61,42 @@ class Pose2D:
     x_m: float
     y_m: float
     yaw_rad: float
+
+
+@dataclass(frozen=True, slots=True)
+class Estimate:
+    """The estimator's state at ``t_ns`` (SPEC §1, §3), in the world frame W.
+
+    W: x forward and y right at the first scan, z down; ``height_m`` is positive up and
+    ``vz_up_mps`` its rate. ``vx_mps``/``vy_mps`` are the complementary filter's world-frame
+    velocity (eq 15-16); ``yaw_rad`` is clockwise. ``pose_valid``/``height_valid`` say
+    whether the laser pose / hat height behind them is fresh enough to fly on.
+    """
+
+    t_ns: int
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    height_m: float
+    vx_mps: float
+    vy_mps: float
+    vz_up_mps: float
+    pose_valid: bool = True
+    height_valid: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """One ExternControl's content in MK counts, as the controllers decided it (SPEC §4).
+
+    ``nick_counts``/``roll_counts``/``yaw_counts`` within +-127 with the MK's signs already
+    applied (``mk.signs``), ``gas_counts`` in [0, control.gas_max]; ``take_control`` sets
+    Config bit 0 (False: neutral hand-back).
+    """
+
+    t_ns: int
+    nick_counts: int
+    roll_counts: int
+    yaw_counts: int
+    gas_counts: int
+    take_control: bool = True

@@ -183,11 +183,19 @@ class UrgDriver:
         self._check(reset)
         self._unwrap.reset()
         self._sensor_clock.reset()
-        version = await self._info("VV")
+        try:
+            version_info = (await self._info("VV")).info
+        except LinkError as err:
+            # Some URG-04LX firmware sends a VV line with a wrong sum (scip2.md §6 item 9):
+            # the whole reply is dropped. VV is only logged, so go on without it.
+            if self._error is not None:
+                raise
+            log.warning("urg_no_version", port=self.port, error=str(err))
+            version_info = {}
         params = parse_params((await self._info("PP")).info)
         status = await self._info("II")
         self.params = params
-        self.info = UrgInfo(version.info, params, status.info)
+        self.info = UrgInfo(version_info, params, status.info)
         if not params.amin_step <= self._s.first_step <= self._s.last_step <= params.amax_step:
             msg = (
                 f"{self.port}: steps {self._s.first_step}-{self._s.last_step} outside the "
