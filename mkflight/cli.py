@@ -128,6 +128,24 @@ def build_parser() -> argparse.ArgumentParser:
     )
     match.add_argument("-o", "--output", metavar="TRAJ", help="write here instead of stdout")
     match.set_defaults(func=_run_scanmatch)
+
+    sim = commands.add_parser("sim", help="the simulator")
+    sim_commands = sim.add_subparsers(dest="sim_command", metavar="COMMAND", parser_class=_Parser)
+    sim_commands.required = True
+    hover = sim_commands.add_parser(
+        "hover",
+        parents=[config_opts],
+        help="fly a simulated hover in lock-step and print its precision",
+        description="Estimator, controllers, failsafe and vehicle model in lock-step, far "
+        "faster than real time: take off, hold, land; writes the flight folder (TABLE III "
+        "and IV, flight.json, truth.txt) and prints the hover precision against truth.",
+    )
+    hover.add_argument("--duration", type=float, default=60.0, metavar="S", help="flight time")
+    hover.add_argument("--seed", type=int, metavar="N", help="random seed (default sim.seed)")
+    hover.add_argument("--height", type=float, metavar="M", help="hover height (default 0.6)")
+    hover.add_argument("--log-dir", metavar="DIR", help="flight folder (default: new, dated)")
+    hover.add_argument("--json", action="store_true", help="one JSON object")
+    hover.set_defaults(func=_run_sim_hover)
     return parser
 
 
@@ -164,6 +182,20 @@ def _run_scanmatch(args: argparse.Namespace) -> int:
         log=args.log,
         odom=args.odom,
         out=args.output,
+        config_path=args.config,
+        overrides=args.overrides,
+    )
+
+
+def _run_sim_hover(args: argparse.Namespace) -> int:
+    from mkflight.commands.sim_hover import cmd_sim_hover
+
+    return cmd_sim_hover(
+        duration_s=args.duration,
+        seed=args.seed,
+        height_m=args.height,
+        log_dir=args.log_dir,
+        as_json=args.json,
         config_path=args.config,
         overrides=args.overrides,
     )

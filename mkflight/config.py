@@ -88,6 +88,7 @@ class ControlConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_
     """Position, velocity, yaw and altitude loops and their limits (SPEC §4, seed §C, J, K)."""
 
     kp_xy: Gain = 1.0
+    ki_xy: Gain = 0.3
     kd_xy: Gain = 0.0
     max_speed_mps: Annotated[float, Meta(gt=0, le=5)] = 0.5
     kp_vxy: Gain = 2.0

@@ -1,0 +1,173 @@
+"""Altitude control (SPEC §4; seed §K eq 25 outer, §H eq 23 inner).
+
+1. Height PID (eq 25) on ``h* - h`` (D on the measurement: ``-kd_z * vz_up``) -> climb-rate
+   set-point, limited to ``+-control.max_climb_mps`` (integral within the same bound), plus
+   an optional climb feed-forward from a ramping set-point.
+2. Vertical velocity PID (eq 23) on ``vz* - vz_up`` -> gas correction, integral clamped to
+   ``+-control.integral_limit_gas``, anti-windup against the gas saturation.
+3. Gas = feed-forward + PID, saturated to ``[0, control.gas_max]`` (seed §K: 0..130) and
+   rounded: an unsigned byte that can never wrap.
+
+Feed-forward (seed §M: the thrust offset drifts as the pack discharges)::
+
+    gas_ff = hover_gas * (hover_voltage_v / battery_v) / max(cos(theta) cos(phi), min_tilt_factor)
+
+Thrust grows roughly with voltage at a given gas, so a lower voltage needs
+proportionally more gas; the ratio is clamped to ``battery_ratio_limits`` so a bad reading
+cannot command a jump, and the tilt factor is floored at ``min_tilt_factor`` (0.5, i.e.
+60 deg) so a large attitude cannot ask for unbounded gas. The integral takes up the rest.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from mkflight.config import ControlConfig
+from mkflight.control.limits import all_finite, gas_to_counts
+from mkflight.control.pid import PidGains, PidState, clamp, pid_update
+
+MIN_TILT_FACTOR = 0.5
+"""Floor of cos(theta) cos(phi) in the feed-forward (60 deg of combined tilt)."""
+
+BATTERY_RATIO_LIMITS = (0.8, 1.25)
+"""Bounds of hover_voltage_v / battery_v in the feed-forward."""
+
+
+@dataclass(frozen=True, slots=True)
+class AltitudeState:
+    """The height (outer) and vertical-velocity (inner) PIDs' states."""
+
+    height: PidState = field(default_factory=PidState)
+    climb: PidState = field(default_factory=PidState)
+
+
+@dataclass(frozen=True, slots=True)
+class AltitudeResult:
+    """One altitude step: the climb set-point, the gas parts and the gas byte."""
+
+    climb_sp_mps: float
+    gas_ff: float
+    gas_pid: float
+    gas_total: float
+    gas_counts: int
+    gas_saturation: int
+    state: AltitudeState
+
+
+def height_gains(control: ControlConfig) -> PidGains:
+    """Eq 25's gains: climb-rate output and integral within +-max_climb_mps."""
+    lim = control.max_climb_mps
+    return PidGains(
+        kp=control.kp_z,
+        ki=control.ki_z,
+        kd=control.kd_z,
+        integral_limit=lim,
+        output_min=-lim,
+        output_max=lim,
+    )
+
+
+def climb_gains(control: ControlConfig) -> PidGains:
+    """Eq 23's gains: output = the whole gas in [0, gas_max], integral +-integral_limit_gas."""
+    return PidGains(
+        kp=control.kp_vz,
+        ki=control.ki_vz,
+        kd=control.kd_vz,
+        integral_limit=control.integral_limit_gas,
+        output_min=0.0,
+        output_max=float(control.gas_max),
+    )
+
+
+def hover_feedforward(
+    control: ControlConfig,
+    *,
+    pitch_rad: float,
+    roll_rad: float,
+    battery_v: float,
+    min_tilt_factor: float = MIN_TILT_FACTOR,
+    battery_ratio_limits: tuple[float, float] = BATTERY_RATIO_LIMITS,
+) -> float:
+    """Hover gas for this attitude and battery (see the module docstring); finite inputs."""
+    ratio = clamp(control.hover_voltage_v / battery_v, *battery_ratio_limits)
+    tilt = max(math.cos(pitch_rad) * math.cos(roll_rad), min_tilt_factor)
+    return control.hover_gas * ratio / tilt
+
+
+def altitude_step(
+    control: ControlConfig,
+    state: AltitudeState,
+    *,
+    height_sp_m: float,
+    height_m: float,
+    vz_up_mps: float,
+    pitch_rad: float,
+    roll_rad: float,
+    battery_v: float,
+    dt_s: float,
+    climb_ff_mps: float = 0.0,
+    min_tilt_factor: float = MIN_TILT_FACTOR,
+    battery_ratio_limits: tuple[float, float] = BATTERY_RATIO_LIMITS,
+) -> AltitudeResult | None:
+    """One altitude step (eq 25 -> eq 23 -> gas).
+
+    Args:
+        control: gains and limits.
+        state: the previous state (``AltitudeState()`` to start).
+        height_sp_m: height set-point (m, up).
+        height_m: estimated height (m, up).
+        vz_up_mps: estimated vertical velocity (m/s, up).
+        pitch_rad: measured pitch (rad).
+        roll_rad: measured roll (rad).
+        battery_v: battery voltage (V), must be > 0.
+        dt_s: seconds since the previous step (from timestamps).
+        climb_ff_mps: climb-rate feed-forward (the set-point's own rate, m/s up).
+        min_tilt_factor: floor of cos(theta) cos(phi).
+        battery_ratio_limits: bounds of hover_voltage_v / battery_v.
+
+    Returns:
+        The result, or None if an input is non-finite or ``battery_v <= 0`` (state
+        unchanged).
+    """
+    values = (height_sp_m, height_m, vz_up_mps, pitch_rad, roll_rad, battery_v, climb_ff_mps)
+    if not all_finite(*values) or battery_v <= 0.0:
+        return None
+    outer = pid_update(
+        height_gains(control),
+        state.height,
+        error=height_sp_m - height_m,
+        measurement=height_m,
+        dt_s=dt_s,
+        rate=vz_up_mps,
+    )
+    if not outer.valid:
+        return None
+    climb_sp = clamp(outer.output + climb_ff_mps, -control.max_climb_mps, control.max_climb_mps)
+    gas_ff = hover_feedforward(
+        control,
+        pitch_rad=pitch_rad,
+        roll_rad=roll_rad,
+        battery_v=battery_v,
+        min_tilt_factor=min_tilt_factor,
+        battery_ratio_limits=battery_ratio_limits,
+    )
+    inner = pid_update(
+        climb_gains(control),
+        state.climb,
+        error=climb_sp - vz_up_mps,
+        measurement=vz_up_mps,
+        dt_s=dt_s,
+        feedforward=gas_ff,
+    )
+    if not inner.valid:
+        return None
+    return AltitudeResult(
+        climb_sp_mps=climb_sp,
+        gas_ff=gas_ff,
+        gas_pid=inner.output - gas_ff,
+        gas_total=inner.output,
+        gas_counts=gas_to_counts(inner.output, control.gas_max),
+        gas_saturation=inner.saturation,
+        state=AltitudeState(outer.state, inner.state),
+    )

@@ -1,0 +1,44 @@
+"""Flight logs (SPEC §6): one module per format, reader and writer together.
+
+* :mod:`~mkflight.logs.table3` -- ``laser_100ms.log`` (seed TABLE III, 10 columns).
+* :mod:`~mkflight.logs.table4` -- ``imu_50ms.log`` (seed TABLE IV, 14 columns).
+* :mod:`~mkflight.logs.flight_json` -- ``flight.json`` (start, versions, config, summary).
+* :mod:`~mkflight.logs.events` -- ``events.jsonl`` (everything else, JSON lines).
+
+Writers create their file in a flight folder and flush every row; readers raise
+:class:`mkflight.errors.ReplayError` naming the file and line, and drop (and report) a
+last line cut short by a killed process.
+"""
+
+from __future__ import annotations
+
+from mkflight.logs._table import TableData
+from mkflight.logs.events import Event, EventsData, EventsWriter, read_events
+from mkflight.logs.flight_json import (
+    FlightInfo,
+    new_flight_info,
+    read_flight_json,
+    with_summary,
+    write_flight_json,
+)
+from mkflight.logs.table3 import Table3Row, Table3Writer, read_table3
+from mkflight.logs.table4 import Table4Row, Table4Writer, read_table4
+
+__all__ = [
+    "Event",
+    "EventsData",
+    "EventsWriter",
+    "FlightInfo",
+    "Table3Row",
+    "Table3Writer",
+    "Table4Row",
+    "Table4Writer",
+    "TableData",
+    "new_flight_info",
+    "read_events",
+    "read_flight_json",
+    "read_table3",
+    "read_table4",
+    "with_summary",
+    "write_flight_json",
+]

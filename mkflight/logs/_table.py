@@ -1,0 +1,202 @@
+"""The text-table format shared by TABLE III and TABLE IV (seed §E, SPEC §6).
+
+One header line of column names separated by single spaces, then one row per line:
+space-separated values, floats as Python's shortest round-trip ``repr`` (``0.1``,
+``-2.5e-05``, ``nan``, ``inf``), integer columns as plain integers, the last column the
+``index`` (strictly increasing). Every line ends with a newline; each row is written and
+flushed in one go, so a killed process leaves every complete row readable and at most a
+last line without its newline, which readers drop (``truncated=True``).
+``numpy.loadtxt(f, skiprows=1)`` reads the files (it parses ``nan``/``inf``), and so does
+MATLAB's ``importdata(f, ' ', 1)``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Self, TextIO
+
+import numpy as np
+import numpy.typing as npt
+
+from mkflight.errors import ReplayError
+
+Value = float | int
+
+
+@dataclass(frozen=True, slots=True)
+class TableFormat:
+    """A table's file name, column names and which columns hold integers (MK counts)."""
+
+    file_name: str
+    columns: tuple[str, ...]
+    int_columns: frozenset[str]
+
+    @property
+    def header(self) -> str:
+        """The first line of the file, without its newline."""
+        return " ".join(self.columns)
+
+    @property
+    def dtype(self) -> np.dtype[np.void]:
+        """The reader's structured dtype: one field per column, named as in the header."""
+        return np.dtype(
+            [(c, np.int64 if c in self.int_columns else np.float64) for c in self.columns]
+        )
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class TableData:
+    """What a reader returns: the rows as a structured array (fields named as the header).
+
+    ``truncated`` is True when the last line had no newline (the writer was killed
+    mid-row): that partial line is not in ``rows``.
+    """
+
+    path: Path
+    rows: npt.NDArray[np.void]
+    truncated: bool
+
+
+def format_row(fmt: TableFormat, values: tuple[Value, ...]) -> str:
+    """One row as a line (with its newline).
+
+    Raises:
+        ValueError: wrong number of values, or an integer column given a non-integral value.
+    """
+    if len(values) != len(fmt.columns):
+        msg = f"{fmt.file_name}: expected {len(fmt.columns)} values, got {len(values)}"
+        raise ValueError(msg)
+    fields: list[str] = []
+    for name, value in zip(fmt.columns, values, strict=True):
+        if name in fmt.int_columns:
+            if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
+                msg = f"{fmt.file_name}: {name} must be an integer, got {value!r}"
+                raise ValueError(msg)
+            fields.append(str(int(value)))
+        else:
+            fields.append(repr(float(value)))
+    return " ".join(fields) + "\n"
+
+
+class TableWriter:
+    """Writes one table file in a flight folder, flushing every row.
+
+    The file is created (never overwritten: ``FileExistsError`` if it exists) and the
+    header written and flushed at once. ``close`` also fsyncs; a flush per row survives a
+    killed process, not a power cut.
+    """
+
+    def __init__(self, folder: str | Path, fmt: TableFormat) -> None:
+        self.fmt = fmt
+        self.path = Path(folder) / fmt.file_name
+        self._file: TextIO | None = self.path.open("x", encoding="ascii", newline="\n")
+        self._last_index: int | None = None
+        self._file.write(fmt.header + "\n")
+        self._file.flush()
+
+    def write_values(self, values: tuple[Value, ...]) -> None:
+        """Append one row (columns in table order) and flush it.
+
+        Raises:
+            ValueError: a malformed row, or an index not above the previous one.
+            RuntimeError: the writer is closed.
+        """
+        if self._file is None:
+            msg = f"{self.path}: writer is closed"
+            raise RuntimeError(msg)
+        line = format_row(self.fmt, values)
+        index = int(values[-1])
+        if self._last_index is not None and index <= self._last_index:
+            msg = f"{self.path}: index {index} not above the previous {self._last_index}"
+            raise ValueError(msg)
+        self._file.write(line)
+        self._file.flush()
+        self._last_index = index
+
+    def close(self) -> None:
+        """Flush, fsync and close (idempotent)."""
+        if self._file is None:
+            return
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._file.close()
+        self._file = None
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def _parse(fmt: TableFormat, path: Path, line_no: int, line: str) -> tuple[Value, ...]:
+    """One row's values, or ReplayError naming the file, the line and the column."""
+    fields = line.split()
+    if len(fields) != len(fmt.columns):
+        msg = f"{path}:{line_no}: expected {len(fmt.columns)} columns, got {len(fields)}"
+        raise ReplayError(msg)
+    out: list[Value] = []
+    for name, text in zip(fmt.columns, fields, strict=True):
+        try:
+            out.append(_int(text) if name in fmt.int_columns else float(text))
+        except ValueError as err:
+            msg = f"{path}:{line_no}: column {name}: cannot parse {text!r}"
+            raise ReplayError(msg) from err
+    return tuple(out)
+
+
+def _int(text: str) -> int:
+    """An integer column: ``12`` or an integral float such as ``12.0`` (other writers)."""
+    try:
+        return int(text)
+    except ValueError:
+        value = float(text)
+        if not value.is_integer():
+            raise
+        return int(value)
+
+
+def read_table(path: str | Path, fmt: TableFormat) -> TableData:
+    """Read a table file written by :class:`TableWriter` (or the seed's system).
+
+    Blank lines are skipped; a last line without newline is dropped (``truncated``).
+
+    Raises:
+        ReplayError: unreadable file, wrong header, a malformed row or a non-increasing
+            index; the message names the file and the line.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="ascii")
+    except (OSError, UnicodeDecodeError) as err:
+        msg = f"{path}: cannot read: {err}"
+        raise ReplayError(msg) from err
+    lines = text.split("\n")
+    truncated = lines[-1] != ""  # the text after the last newline: a partial row
+    complete = lines[:-1]
+    if not complete or complete[0].split() != list(fmt.columns):
+        got = complete[0] if complete else text
+        msg = f"{path}:1: expected the header {fmt.header!r}, got {got[:200]!r}"
+        raise ReplayError(msg)
+    rows: list[tuple[Value, ...]] = []
+    last_index: int | None = None
+    for line_no, line in enumerate(complete[1:], start=2):
+        if not line.strip():
+            continue
+        values = _parse(fmt, path, line_no, line)
+        index = int(values[-1])
+        if last_index is not None and index <= last_index:
+            msg = f"{path}:{line_no}: index {index} not above the previous {last_index}"
+            raise ReplayError(msg)
+        last_index = index
+        rows.append(values)
+    return TableData(path=path, rows=np.array(rows, dtype=fmt.dtype), truncated=truncated)

@@ -1,0 +1,135 @@
+"""The events log (``events.jsonl``): everything not in the two tables (SPEC §6).
+
+Format: JSON lines, UTF-8, one object per event, flushed as written::
+
+    {"t_ns": 1234567890, "event": "failsafe", "action": "land", "cause": "laser stale"}
+
+``t_ns`` is the injected clock's time (nanoseconds, int), ``event`` a short name, then
+the event's own fields (builtins only; non-finite floats become ``null``, since strict
+JSON has no NaN). A killed process leaves at most a last line without its newline,
+which :func:`read_events` drops and reports (``truncated``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Self, TextIO
+
+from mkflight.errors import ReplayError
+
+FILE_NAME = "events.jsonl"
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    """One event: its time, its name and its fields."""
+
+    t_ns: int
+    event: str
+    fields: dict[str, Any]
+
+
+def _finite(obj: Any) -> Any:
+    """Replace non-finite floats by None, recursively (strict JSON)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {str(k): _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_finite(v) for v in obj]
+    return obj
+
+
+class EventsWriter:
+    """Creates ``events.jsonl`` in a flight folder and appends one line per event."""
+
+    def __init__(self, folder: str | Path, file_name: str = FILE_NAME) -> None:
+        self.path = Path(folder) / file_name
+        self._file: TextIO | None = self.path.open("x", encoding="utf-8", newline="\n")
+
+    def write(self, t_ns: int, event: str, /, **fields: Any) -> None:
+        """Append one event and flush it.
+
+        Raises:
+            ValueError: a field named ``t_ns`` or ``event``.
+            TypeError: a field value JSON cannot represent.
+            RuntimeError: the writer is closed.
+        """
+        if self._file is None:
+            msg = f"{self.path}: writer is closed"
+            raise RuntimeError(msg)
+        if "t_ns" in fields or "event" in fields:
+            msg = f"{self.path}: field names t_ns and event are reserved"
+            raise ValueError(msg)
+        record = {"t_ns": int(t_ns), "event": event, **_finite(fields)}
+        self._file.write(json.dumps(record, allow_nan=False, separators=(",", ":")) + "\n")
+        self._file.flush()
+
+    def close(self) -> None:
+        """Flush, fsync and close (idempotent)."""
+        if self._file is None:
+            return
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._file.close()
+        self._file = None
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+@dataclass(frozen=True, slots=True)
+class EventsData:
+    """What :func:`read_events` returns; ``truncated``: a partial last line was dropped."""
+
+    path: Path
+    events: list[Event]
+    truncated: bool
+
+
+def read_events(path: str | Path) -> EventsData:
+    """Read an events log.
+
+    Raises:
+        ReplayError: unreadable file, or a complete line that is not an event object
+            with an integer ``t_ns`` and a string ``event``; names the file and line.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        msg = f"{path}: cannot read: {err}"
+        raise ReplayError(msg) from err
+    lines = text.split("\n")
+    truncated = lines[-1] != ""
+    events: list[Event] = []
+    for line_no, line in enumerate(lines[:-1], start=1):
+        if not line.strip():
+            continue
+        try:
+            obj = json.loads(line)
+        except json.JSONDecodeError as err:
+            msg = f"{path}:{line_no}: not JSON: {err.msg}"
+            raise ReplayError(msg) from err
+        if not isinstance(obj, dict):
+            msg = f"{path}:{line_no}: expected an object, got {type(obj).__name__}"
+            raise ReplayError(msg)
+        t_ns, name = obj.pop("t_ns", None), obj.pop("event", None)
+        if not isinstance(t_ns, int) or isinstance(t_ns, bool) or not isinstance(name, str):
+            msg = f"{path}:{line_no}: needs an integer t_ns and a string event"
+            raise ReplayError(msg)
+        events.append(Event(t_ns, name, obj))
+    return EventsData(path, events, truncated)

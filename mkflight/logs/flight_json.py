@@ -1,0 +1,128 @@
+"""``flight.json``: one flight's metadata (SPEC §6), rewritten atomically.
+
+Format: one JSON object (UTF-8, indented)::
+
+    {
+      "start_utc": "2024-05-01T12:00:00.000000Z",  # ISO 8601, UTC
+      "mkflight_version": "0.1.0",
+      "fc_version": "0.84a",                        # null until the FC answered
+      "config": {...},                              # mkflight.config.config_to_dict
+      "summary": {...}                              # null until the flight ends
+    }
+
+It is written at the start and again with the summary at the end. Each write goes to
+``flight.json.tmp``, is fsynced and renamed over ``flight.json``, so a reader never sees a
+half-written file. Non-finite floats in the summary (e.g. a precision that could not be
+computed) are written as ``null``: strict JSON has no NaN.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, replace
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import mkflight
+from mkflight.config import Config, config_to_dict
+from mkflight.errors import ReplayError
+
+FILE_NAME = "flight.json"
+_KEYS = ("start_utc", "mkflight_version", "fc_version", "config", "summary")
+
+
+@dataclass(frozen=True, slots=True)
+class FlightInfo:
+    """The content of ``flight.json`` (plain builtins past the config)."""
+
+    start_utc: str
+    mkflight_version: str
+    fc_version: str | None
+    config: dict[str, Any]
+    summary: dict[str, Any] | None = None
+
+
+def new_flight_info(start: datetime, cfg: Config, fc_version: str | None = None) -> FlightInfo:
+    """The metadata at take-off; ``start`` comes from the caller (no clock read here).
+
+    Raises:
+        ValueError: ``start`` is naive (no time zone).
+    """
+    if start.tzinfo is None:
+        msg = f"flight.json: start time {start!r} has no time zone"
+        raise ValueError(msg)
+    stamp = start.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+    config = json.loads(json.dumps(config_to_dict(cfg)))  # as read back: lists, not tuples
+    return FlightInfo(stamp, mkflight.__version__, fc_version, config)
+
+
+def with_summary(info: FlightInfo, summary: dict[str, Any]) -> FlightInfo:
+    """The same metadata with the end-of-flight summary."""
+    return replace(info, summary=summary)
+
+
+def _finite(obj: Any) -> Any:
+    """Replace non-finite floats by None, recursively (strict JSON)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {str(k): _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_finite(v) for v in obj]
+    return obj
+
+
+def write_flight_json(folder: str | Path, info: FlightInfo) -> Path:
+    """Write ``folder/flight.json`` atomically (tmp file, fsync, rename); return its path.
+
+    Raises:
+        TypeError: a summary value JSON cannot represent.
+    """
+    path = Path(folder) / FILE_NAME
+    tmp = path.with_name(FILE_NAME + ".tmp")
+    data = {key: _finite(getattr(info, key)) for key in _KEYS}
+    text = json.dumps(data, indent=2, allow_nan=False) + "\n"
+    with tmp.open("w", encoding="utf-8") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    tmp.replace(path)
+    return path
+
+
+def read_flight_json(path: str | Path) -> FlightInfo:
+    """Read a ``flight.json`` (or the one in a flight folder).
+
+    Raises:
+        ReplayError: unreadable, not JSON, or a key missing or of the wrong type; the
+            message names the file and the key.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / FILE_NAME
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        msg = f"{path}: cannot read flight metadata: {err}"
+        raise ReplayError(msg) from err
+    if not isinstance(data, dict):
+        msg = f"{path}: expected a JSON object, got {type(data).__name__}"
+        raise ReplayError(msg)
+    expected: dict[str, tuple[type, ...]] = {
+        "start_utc": (str,),
+        "mkflight_version": (str,),
+        "fc_version": (str, type(None)),
+        "config": (dict,),
+        "summary": (dict, type(None)),
+    }
+    for key, types in expected.items():
+        if key not in data:
+            msg = f"{path}: missing key {key!r}"
+            raise ReplayError(msg)
+        if not isinstance(data[key], types):
+            msg = f"{path}: {key}: unexpected type {type(data[key]).__name__}"
+            raise ReplayError(msg)
+    return FlightInfo(**{key: data[key] for key in _KEYS})

@@ -1,0 +1,329 @@
+"""``mkflight sim hover``: estimator + controllers + failsafe + vehicle model in lock-step.
+
+No ports and no real time: the vehicle model is stepped between the FC's DebugOut
+instants (every 52 FC ticks = 53.248 ms, mk-serial.md §7.2). At each instant the IMU is
+measured (vibration, trim, biases, noise), quantised through the MK's own counts
+(SPEC §1's table both ways) and fed to the estimator; the failsafe, the flight phases and
+the controllers decide the command; the FC's rules apply it (extern gas capped by the
+pilot's stick gas). Every 100 ms a laser pose and hat height are measured at the scan's
+time (truth plus scan-matcher-sized noise) and delivered 100 ms later (seed §G), stamped
+with the time the scan was taken. The two tables (TABLE III/IV), ``flight.json`` and a
+truth log are written, and the hover precision is measured on the truth about the
+set-point during HOLD.
+
+The laser here is a pose measurement, not ray-cast scans through the matcher: the
+matcher's own accuracy is measured on the datasets (``tools/bench.py``); this tool is for
+tuning the estimator and the loops, fast.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+
+from mkflight.config import Config
+from mkflight.control.controller import Controller
+from mkflight.control.phases import Phase, PhaseParams, PhaseRequests, PhaseState, phase_step
+from mkflight.estimation.estimator import Estimator
+from mkflight.logs.flight_json import new_flight_info, with_summary, write_flight_json
+from mkflight.logs.table3 import Table3Row, Table3Writer
+from mkflight.logs.table4 import Table4Row, Table4Writer
+from mkflight.mk.messages import ANALOG_GAS, ANALOG_RECEIVER_LEVEL, DebugOut
+from mkflight.mk.units import MkCalibration, analog_from_si, imu_from_debug
+from mkflight.msgs import Command, Pose2D
+from mkflight.safety.failsafe import Failsafe, FailsafeAction, FailsafeInputs
+from mkflight.sim.vehicle import (
+    Sticks,
+    VehicleParams,
+    VehicleState,
+    battery_reading_v,
+    imu_measured_si,
+    initial_state,
+    step,
+)
+
+NS_PER_S = 1_000_000_000
+IMU_PERIOD_NS = 52 * 1_024_000  # 'd' 5: 50 FC ticks + the 2-tick overshoot (mk-serial §7.2)
+SCAN_PERIOD_NS = 100_000_000  # 600 rpm
+LASER_DELAY_NS = 100_000_000  # the scan reaches the pose ~100 ms after it was taken (§G)
+POSE_NOISE_M = 0.003  # the scan matcher at hover: ~1-3 mm per relation (data README)
+YAW_NOISE_RAD = 0.001
+HEIGHT_NOISE_M = 0.0015  # the median of 84 hat beams with 1 cm noise
+SETTLE_S = 3.0  # precision counts from this long after HOLD begins
+LAND_MARGIN_S = 5.0  # time allowed after the duration to land
+
+
+@dataclass(slots=True)
+class HoverResult:
+    """What ``sim hover`` reports (SPEC §7, issue 6)."""
+
+    std_x_m: float
+    std_y_m: float
+    std_z_m: float
+    rms_x_m: float
+    rms_y_m: float
+    rms_z_m: float
+    realtime_factor: float
+    log_dir: str
+    sim_s: float
+    wall_s: float
+    hold_s: float
+    landed: bool
+    failsafes: list[str] = field(default_factory=list)
+    cpu_us_per_step: float = 0.0
+
+    def as_dict(self) -> dict[str, object]:
+        """The ``--json`` object."""
+        return {
+            "std_x_m": round(self.std_x_m, 5),
+            "std_y_m": round(self.std_y_m, 5),
+            "std_z_m": round(self.std_z_m, 5),
+            "rms_x_m": round(self.rms_x_m, 5),
+            "rms_y_m": round(self.rms_y_m, 5),
+            "rms_z_m": round(self.rms_z_m, 5),
+            "realtime_factor": round(self.realtime_factor, 1),
+            "log_dir": self.log_dir,
+            "sim_s": round(self.sim_s, 3),
+            "hold_s": round(self.hold_s, 3),
+            "landed": self.landed,
+            "failsafes": self.failsafes,
+            "cpu_us_per_step": round(self.cpu_us_per_step, 1),
+        }
+
+
+def _stats(errors: list[float]) -> tuple[float, float]:
+    if not errors:
+        return math.nan, math.nan
+    a = np.asarray(errors)
+    return float(np.std(a)), float(np.sqrt(np.mean(a * a)))
+
+
+def run_hover(
+    cfg: Config, *, duration_s: float, seed: int, log_dir: Path, height_m: float | None = None
+) -> HoverResult:
+    """Fly a simulated hover of ``duration_s`` (take-off, hold, land) and measure it."""
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    rng = np.random.default_rng(seed)
+    params = VehicleParams.from_config(cfg)
+    vehicle: VehicleState = initial_state(params, rng)
+    cal = MkCalibration.from_config(cfg.mk)
+    estimator = Estimator(cfg.estimation, cfg.mk.g_mps2, pose_stale_s=cfg.safety.laser_stale_s)
+    controller = Controller(cfg.control, cfg.mk)
+    failsafe = Failsafe(cfg.safety)
+    overrides = {} if height_m is None else {"takeoff_height_m": height_m}
+    phase_params = PhaseParams.from_config(cfg.control, cfg.mk.handshake_s, **overrides)
+    phase = PhaseState()
+    stick_gas = cfg.sim.fc.stick_gas
+
+    log_dir.mkdir(parents=True, exist_ok=True)
+    info = new_flight_info(datetime.now(UTC), cfg, fc_version=cfg.sim.fc.version)
+    write_flight_json(log_dir, info)
+    t3, t4 = Table3Writer(log_dir), Table4Writer(log_dir)
+    truth = (log_dir / "truth.txt").open("x", encoding="utf-8")
+    truth.write("t x y z\n")
+
+    sticks = Sticks()
+    last_cmd = Command(0, 0, 0, 0, 0, take_control=False)
+    pending: deque[tuple[int, Pose2D, float]] = deque()  # (delivery t_ns, pose, height)
+    next_scan_ns = 0
+    last_pose_ns: int | None = None
+    end_ns = int(duration_s * NS_PER_S)
+    stop_ns = end_ns + int(LAND_MARGIN_S * NS_PER_S)
+    err_x: list[float] = []
+    err_y: list[float] = []
+    err_z: list[float] = []
+    hold_start_ns: int | None = None
+    failsafe_log: list[str] = []
+    t_ns = 0
+    index4 = index3 = 0
+    steps = 0
+    try:
+        while t_ns < stop_ns:
+            t_ns += IMU_PERIOD_NS
+            # Scans taken up to now: measured at their own time (the vehicle's pose then).
+            while next_scan_ns <= t_ns:
+                if next_scan_ns * 1e-9 > vehicle.t_s:
+                    vehicle = step(vehicle, sticks, next_scan_ns * 1e-9 - vehicle.t_s, params, rng)
+                pose = Pose2D(
+                    next_scan_ns,
+                    float(vehicle.pos_w_m[0] + rng.normal(0, POSE_NOISE_M)),
+                    float(vehicle.pos_w_m[1] + rng.normal(0, POSE_NOISE_M)),
+                    float(vehicle.yaw_rad + rng.normal(0, YAW_NOISE_RAD)),
+                )
+                height = float(vehicle.height_m + rng.normal(0, HEIGHT_NOISE_M))
+                pending.append((next_scan_ns + LASER_DELAY_NS, pose, height))
+                next_scan_ns += SCAN_PERIOD_NS
+            vehicle = step(vehicle, sticks, t_ns * 1e-9 - vehicle.t_s, params, rng)
+            truth.write(
+                f"{t_ns / NS_PER_S:.4f} {vehicle.pos_w_m[0]:.5f} {vehicle.pos_w_m[1]:.5f} "
+                f"{vehicle.height_m:.5f}\n"
+            )
+            # The laser poses whose delay has passed arrive now (TABLE III step).
+            while pending and pending[0][0] <= t_ns:
+                _, pose, height = pending.popleft()
+                estimator.on_pose(pose)
+                estimator.on_height(pose.t_ns, height)
+                last_pose_ns = pose.t_ns
+                ls = estimator.laser_step
+                if ls is not None:
+                    index3 += 1
+                    t3.write_row(
+                        Table3Row(
+                            ls.w_vel_x_mps,
+                            ls.b_vel_x_mps,
+                            ls.b_esti_vel_x_mps,
+                            ls.w_vel_y_mps,
+                            ls.b_vel_y_mps,
+                            ls.b_esti_vel_y_mps,
+                            ls.x_m,
+                            ls.y_m,
+                            ls.yaw_rad,
+                            index3,
+                        )
+                    )
+            # The FC's DebugOut: measured, in MK counts, back to SI (SPEC §1 both ways).
+            m = imu_measured_si(vehicle, params, rng)
+            battery = battery_reading_v(vehicle, params, rng)
+            analog = analog_from_si(
+                pitch_rad=m.pitch_rad,
+                roll_rad=m.roll_rad,
+                yaw_rad=m.yaw_rad,
+                acc_x_mps2=m.acc_x_mps2,
+                acc_y_mps2=m.acc_y_mps2,
+                acc_z_mps2=m.acc_z_mps2,
+                battery_v=battery,
+                cal=cal,
+            )
+            analog[ANALOG_GAS] = 4 * int(sticks.gas_counts)
+            analog[ANALOG_RECEIVER_LEVEL] = 200
+            imu = imu_from_debug(DebugOut.from_values(analog), t_ns, cal)
+            est = estimator.on_imu(imu)
+            # Failsafe, phases, controllers (the 50 ms step).
+            laser_age = math.inf if last_pose_ns is None else (t_ns - last_pose_ns) / NS_PER_S
+            flying = phase.phase in (Phase.TAKEOFF, Phase.HOLD, Phase.LAND)
+            fs = failsafe.update(
+                FailsafeInputs(
+                    t_ns=t_ns,
+                    values_finite=True,
+                    laser_age_s=laser_age if flying else 0.0,
+                    scan_degenerate=False,
+                    mk_age_s=0.0,
+                    x_m=est.x_m,
+                    y_m=est.y_m,
+                    height_m=est.height_m,
+                    battery_v=imu.battery_v,
+                    stop=None,
+                    pilot_override=False,
+                )
+            )
+            failsafe_log += [
+                f"{e.t_ns / NS_PER_S:.2f}s {e.action.name} {e.cause}" for e in fs.events
+            ]
+            requests = PhaseRequests(
+                takeoff=t_ns >= 0,
+                land=t_ns >= end_ns,
+                handshake_ok=t_ns >= int(cfg.mk.handshake_s * NS_PER_S),
+            )
+            out_phase = phase_step(
+                phase_params,
+                phase,
+                t_ns=t_ns,
+                est=est,
+                requests=requests,
+                failsafe=fs.action,
+                last_gas_counts=last_cmd.gas_counts,
+            )
+            phase = out_phase.state
+            command = Command(t_ns, 0, 0, 0, 0, take_control=out_phase.take_control)
+            if out_phase.run_controllers and out_phase.setpoint is not None:
+                dt_s = IMU_PERIOD_NS / NS_PER_S
+                control = controller.update(
+                    est,
+                    out_phase.setpoint,
+                    (imu.pitch_rad, imu.roll_rad),
+                    imu.battery_v,
+                    dt_s,
+                    mode=out_phase.mode,
+                    take_control=out_phase.take_control,
+                )
+                command = control.command if control.valid and control.command else last_cmd
+                if out_phase.phase is Phase.HOLD:
+                    sp = out_phase.setpoint
+                    if hold_start_ns is None:
+                        hold_start_ns = t_ns
+                    if t_ns - hold_start_ns >= SETTLE_S * NS_PER_S and t_ns < end_ns:
+                        err_x.append(float(vehicle.pos_w_m[0]) - sp.x_m)
+                        err_y.append(float(vehicle.pos_w_m[1]) - sp.y_m)
+                        err_z.append(vehicle.height_m - sp.height_m)
+            if out_phase.gas_cut:
+                command = Command(t_ns, 0, 0, 0, 0, take_control=command.take_control)
+            last_cmd = command
+            # The FC applies it: extern added to the (neutral) sticks, gas capped (§7.4).
+            if command.take_control:
+                sticks = Sticks(
+                    nick_counts=command.nick_counts,
+                    roll_counts=command.roll_counts,
+                    yaw_counts=command.yaw_counts,
+                    gas_counts=min(stick_gas, command.gas_counts),
+                )
+            else:
+                sticks = Sticks()
+            index4 += 1
+            t4.write_row(
+                Table4Row(
+                    imu.pitch_rad,
+                    imu.roll_rad,
+                    imu.yaw_rad,
+                    imu.acc_x_mps2,
+                    imu.acc_y_mps2,
+                    imu.acc_z_mps2,
+                    command.nick_counts,
+                    command.roll_counts,
+                    command.yaw_counts,
+                    0,
+                    0,
+                    0,
+                    stick_gas,
+                    index4,
+                )
+            )
+            steps += 1
+            if phase.phase is Phase.RELEASED:
+                break
+    finally:
+        t3.close()
+        t4.close()
+        truth.close()
+    wall_s = time.perf_counter() - wall0
+    cpu_us = (time.process_time() - cpu0) / max(steps, 1) * 1e6
+    sx, rx = _stats(err_x)
+    sy, ry = _stats(err_y)
+    sz, rz = _stats(err_z)
+    sim_s = t_ns / NS_PER_S
+    result = HoverResult(
+        std_x_m=sx,
+        std_y_m=sy,
+        std_z_m=sz,
+        rms_x_m=rx,
+        rms_y_m=ry,
+        rms_z_m=rz,
+        realtime_factor=sim_s / wall_s if wall_s > 0 else math.inf,
+        log_dir=str(log_dir),
+        sim_s=sim_s,
+        wall_s=wall_s,
+        hold_s=len(err_x) * IMU_PERIOD_NS / NS_PER_S,
+        landed=phase.phase in (Phase.LANDED, Phase.RELEASED),
+        failsafes=failsafe_log,
+        cpu_us_per_step=cpu_us,
+    )
+    write_flight_json(log_dir, with_summary(info, result.as_dict()))
+    return result
+
+
+__all__ = ["FailsafeAction", "HoverResult", "run_hover"]

@@ -1,0 +1,1 @@
+"""Tests of mkflight.frames (rotations, level acceleration) and mkflight.estimation."""
