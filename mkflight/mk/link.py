@@ -7,76 +7,54 @@ consumer, 'V' answers the version request, 'B' confirms are matched to the Exter
 frames they answer (round-trip time). Frames of other addresses (the ``#dk`` compass
 frames) and unknown commands are counted and dropped (``mk-serial.md`` §2.1, §7.6).
 
-Safety rules (``mk-serial.md`` §7-8; SPEC §2, §5):
+The link keeps the port, the reader, the version handshake and the lifecycle; behind its
+own public methods it delegates the receiving side to
+:class:`~mkflight.mk.subscription.DebugSubscription` (the newest sample, renewal,
+staleness) and the sending side to :class:`~mkflight.mk.sender.CommandSender` (numbered
+ExternControl, confirms, the last gate on limits, the sticky hand-back, frame spacing).
 
-* The subscription is renewed from :meth:`MkLink.next_sample`, i.e. by the consumer
-  asking for its next sample: a stalled control step stops refreshing the FC's hold on
-  the last extern command, and the FC falls back to the pilot's sticks.
-* No DebugOut for ``stale_s``: re-subscribe (and ask the version again). Still none after
-  ``release_after_stale_s`` while we had control: hand control back (Config = 0) and stop
-  renewing for the FC's hold time, so that even an FC whose transmitter died but whose
-  receiver works ends extern control.
-* Handing back is sticky: after :meth:`MkLink.release`, a stale-data release, a re-open or
-  :meth:`MkLink.close`, a command that takes control raises until the flight logic calls
-  :meth:`MkLink.allow_control` (SPEC §5: never re-engage just because data came back).
-* The link is the last gate on commands: gas in [0, gas_max], nick/roll/yaw within
-  +-127, address 1, whatever the caller computed; packing raises, never wraps.
-* :meth:`MkLink.close` always tries to hand back (Config = 0, ``release_frames`` times)
-  while the port is writable, also after a crash of the reader, and finishes even if the
-  task closing it is cancelled.
-* Frames are spaced by :class:`~mkflight.mk.outbox.Outbox` (one per write, >= 3 ms after
-  the previous frame left the wire).
+Safety rules (``mk-serial.md`` §7-8; SPEC §2, §5): each side states its own. The link's:
+:meth:`MkLink.close` always tries to hand back (Config = 0, ``release_frames`` times)
+while the port is writable, also after a crash of the reader, and finishes even if the
+task closing it is cancelled; :meth:`MkLink.reopen` hands back before it renews anything.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import math
 from collections.abc import AsyncIterator
 
 import structlog
 
 from mkflight.clock import Clock, MonotonicClock
-from mkflight.errors import CommandRangeError, LinkError, ProtocolError
+from mkflight.errors import LinkError, ProtocolError
+from mkflight.io.reopen import open_with_backoff
 from mkflight.io.stream import ByteStream
-from mkflight.mk.codec import ADDR_FC, Frame, FrameParser, encode_frame
+from mkflight.mk.codec import ADDR_FC, Frame, FrameParser
 from mkflight.mk.link_types import NS_PER_S, LinkSettings, LinkStats, Opener, Tap
 from mkflight.mk.messages import (
     CMD_CONFIRM,
     CMD_DEBUG_ANSWER,
-    CMD_EXTERN,
     CMD_LABEL_ANSWER,
     CMD_PPM_ANSWER,
     CMD_VERSION_ANSWER,
-    EC_VALID,
-    EXTERN_FRAME_OFFSET,
     Confirm,
     DebugOut,
     ExternControl,
     Label,
     Ppm,
     VersionInfo,
-    debug_request,
     version_request,
 )
-from mkflight.mk.outbox import Outbox
-from mkflight.mk.units import MkCalibration, imu_from_debug
+from mkflight.mk.sender import CommandSender
+from mkflight.mk.subscription import DebugSubscription
+from mkflight.mk.units import MkCalibration
 from mkflight.msgs import ImuSample
 
 __all__ = ["NS_PER_S", "LinkSettings", "LinkStats", "MkLink"]
 
 log = structlog.get_logger("mkflight.mk")
-
-CONFIRM_TIMEOUT_NS = NS_PER_S  # a confirm not back within this is counted lost
-RELEASE_CONFIRM_WAIT_S = 0.1  # wait for the last release frame's confirm (behind a DebugOut)
-FC_HOLD_S = 5.5  # the FC drops extern control ~5.2 s after the last hold frame (§7.4)
-_OFF = -(10**18)
-
-
-def _resolve(waiter: asyncio.Future[None]) -> None:
-    if not waiter.done():
-        waiter.set_result(None)
 
 
 class MkLink:
@@ -94,7 +72,6 @@ class MkLink:
     ) -> None:
         self._stream = stream
         self._settings = settings
-        self._cal = calibration
         self._clock: Clock = clock or MonotonicClock()
         self._opener = reopen
         self._tap = tap
@@ -106,27 +83,30 @@ class MkLink:
         self.last_debug: DebugOut | None = None
         self.last_ppm: Ppm | None = None
         self.labels: dict[int, str] = {}
-        self._latest: ImuSample | None = None
-        self._sample_waiter: asyncio.Future[None] | None = None
         self._version_event = asyncio.Event()
-        self._confirm_event = asyncio.Event()
         self._error: LinkError | None = None  # what consumers get
         self._port_dead = False  # the stream itself failed: nothing can be written
         self._reader: asyncio.Task[None] | None = None
-        self._frame_no = 0
-        self._pending_confirms: dict[int, int] = {}
-        self._last_subscribe_ns = _OFF
-        self._last_sample_ns: int | None = None
-        self._stale = False
-        self._want_version = False
-        self._engaged = False  # a command with Config bit 0 went out since the last release
-        self._blocked: str | None = None  # why taking control is refused, if it is
-        self._renew_after_ns = _OFF  # no 'd' before this (after a stale-data release)
         self._closing: asyncio.Task[None] | None = None
-        self._outbox = Outbox(
-            self._write_now, baudrate=settings.baudrate, gap_s=settings.min_frame_gap_s
+        self._tx = CommandSender(
+            self._write_now,
+            settings,
+            self.stats,
+            self._clock,
+            port=self.port,
+            check_writable=self._check_writable,
+            check_failed=self._raise_if_failed,
         )
-        self._outbox.on_superseded = self._on_superseded
+        self._rx = DebugSubscription(
+            self._tx,
+            settings,
+            self.stats,
+            calibration,
+            self._clock,
+            port=self.port,
+            start=self.start,
+            check_failed=self._raise_if_failed,
+        )
 
     # ----- lifecycle -------------------------------------------------------------------
 
@@ -152,7 +132,7 @@ class MkLink:
         while True:
             self._raise_if_failed()
             self._version_event.clear()
-            self._send("v", version_request())
+            self._tx.send("v", version_request())
             tries += 1
             left_ns = deadline - self._clock.now_ns()
             wait_s = min(s.version_retry_s, max(left_ns, 0) / NS_PER_S)
@@ -173,12 +153,7 @@ class MkLink:
 
     def subscribe(self) -> None:
         """Send the DebugOut subscription 'd' (also renews it and the FC's hold)."""
-        self.start()
-        if self._clock.now_ns() < self._renew_after_ns:
-            return  # after a stale-data release: no hold refresh yet (_release_stale)
-        self._send("d", debug_request(self._settings.debug_interval_10ms))
-        self._last_subscribe_ns = self._clock.now_ns()
-        self.stats.subscriptions += 1
+        self._rx.subscribe()
 
     async def close(self, *, release: bool = True) -> None:
         """Hand control back (Config = 0, several times), stop the stream, close the port.
@@ -192,7 +167,7 @@ class MkLink:
         await asyncio.shield(self._closing)
 
     async def _shutdown(self, release: bool) -> None:
-        self._blocked = "link closed"
+        self._tx.block("link closed")
         try:
             if release and not self._port_dead:
                 with contextlib.suppress(LinkError):
@@ -201,10 +176,10 @@ class MkLink:
                     await self.release(quick=self.version is None)
             if not self._port_dead:
                 with contextlib.suppress(LinkError):
-                    self._send("d", debug_request(0))  # stop the stream (it would expire)
-                    await self._outbox.drained()
+                    self._rx.unsubscribe()  # stop the stream (it would expire)
+                    await self._tx.drained()
         finally:
-            self._outbox.cancel()
+            self._tx.stop()
             await self._stop_reader()
             with contextlib.suppress(LinkError, OSError):
                 await self._stream.close()
@@ -242,35 +217,29 @@ class MkLink:
             msg = f"{self.port}: no way to re-open this link"
             raise LinkError(msg)
         await self._stop_reader()
-        self._drop_confirms(self._outbox.cancel())
+        self._tx.drop_queued()
         with contextlib.suppress(LinkError, OSError):
             await self._stream.close()
         self._port_dead = True
-        s = self._settings
-        delay_s = s.reopen_backoff_s
-        deadline = self._clock.now_ns() + int(max_wait_s * NS_PER_S)
-        while True:
-            try:
-                stream = await self._opener()
-                break
-            except LinkError as err:
-                if self._clock.now_ns() + int(delay_s * NS_PER_S) > deadline:
-                    msg = f"{self.port}: did not come back within {max_wait_s:g} s ({err})"
-                    raise LinkError(msg) from err
-                log.warning("mk_reopen_retry", port=self.port, error=str(err), wait_s=delay_s)
-                await asyncio.sleep(delay_s)
-                delay_s = min(delay_s * 2, s.reopen_backoff_max_s)
-        self._stream = stream
+        self._stream = await open_with_backoff(
+            self._opener,
+            port=self.port,
+            max_wait_s=max_wait_s,
+            backoff_s=self._settings.reopen_backoff_s,
+            backoff_max_s=self._settings.reopen_backoff_max_s,
+            log_event="mk_reopen_retry",
+            now_ns=self._clock.now_ns,
+        )
         self._parser.reset()
         self._error = None
         self._port_dead = False
-        self._latest = None
+        self._rx.forget_sample()
         self.stats.reopens += 1
         log.warning("mk_reopened", port=self.port, reopens=self.stats.reopens)
         version = await self.connect()
         await self.release()
-        self._blocked = "port re-opened"
-        self._renew_after_ns = _OFF
+        self._tx.block("port re-opened")
+        self._rx.resume_renewals()
         self.subscribe()
         return version
 
@@ -292,7 +261,7 @@ class MkLink:
             raise
         except Exception as err:  # a bug: consumers must not wait forever; close() releases
             log.exception("mk_reader_crashed", port=self.port)
-            self._blocked = "the link's reader crashed"
+            self._tx.block("the link's reader crashed")
             self._fail(LinkError(f"{self.port}: reader crashed: {err!r}"))
 
     def _dispatch(self, frame: Frame, t_ns: int) -> None:
@@ -302,9 +271,10 @@ class MkLink:
             return
         try:
             if frame.cmd == CMD_DEBUG_ANSWER:
-                self._on_debug(DebugOut.decode(frame), t_ns)
+                self.last_debug = DebugOut.decode(frame)
+                self._rx.on_debug(self.last_debug, t_ns)
             elif frame.cmd == CMD_CONFIRM:
-                self._on_confirm(Confirm.decode(frame).frame, t_ns)
+                self._tx.on_confirm(Confirm.decode(frame).frame, t_ns)
             elif frame.cmd == CMD_VERSION_ANSWER:
                 self._on_version(VersionInfo.decode(frame))
             elif frame.cmd == CMD_PPM_ANSWER:
@@ -316,39 +286,6 @@ class MkLink:
                 stats.unknown_frames += 1
         except ProtocolError:
             stats.bad_messages += 1
-
-    def _on_debug(self, debug: DebugOut, t_ns: int) -> None:
-        self.last_debug = debug
-        self._last_sample_ns = t_ns
-        self.stats.samples += 1
-        if self._latest is not None:
-            self.stats.samples_dropped += 1  # the consumer fell behind: newest wins
-        self._latest = imu_from_debug(debug, t_ns, self._cal)
-        if self._stale:
-            self._stale = False
-            self._renew_after_ns = _OFF
-            # Ask who is there now (an FC that rebooted was deaf to the stale-time 'v'),
-            # from the consumer's next call so that it cannot delay this sample's command.
-            self._want_version = True
-            log.info("mk_data_resumed", port=self.port)
-        waiter = self._sample_waiter
-        if waiter is not None and not waiter.done():
-            waiter.set_result(None)
-
-    def _on_confirm(self, frame_no: int, t_ns: int) -> None:
-        sent_ns = self._pending_confirms.pop(frame_no, None)
-        if sent_ns is None:
-            return
-        self.stats.confirms += 1
-        self.stats.rtt_ns.append(t_ns - sent_ns)
-        self._confirm_event.set()
-
-    def _expire_confirms(self, now_ns: int) -> None:
-        horizon = now_ns - CONFIRM_TIMEOUT_NS
-        for no, t_sent in list(self._pending_confirms.items()):
-            if t_sent < horizon:
-                del self._pending_confirms[no]
-                self.stats.confirms_lost += 1
 
     def _on_version(self, version: VersionInfo) -> None:
         previous = self.version
@@ -362,14 +299,16 @@ class MkLink:
         if self._error is None:
             self._error = err
         self._version_event.set()
-        self._confirm_event.set()
-        waiter = self._sample_waiter
-        if waiter is not None and not waiter.done():
-            waiter.set_result(None)
+        self._tx.wake()
+        self._rx.wake()
 
     def _raise_if_failed(self) -> None:
         if self._error is not None:
             raise self._error
+
+    def _check_writable(self) -> None:
+        if self._port_dead:
+            raise self._error or LinkError(f"{self.port}: port closed")
 
     # ----- the consumer's side ---------------------------------------------------------
 
@@ -381,98 +320,40 @@ class MkLink:
     @property
     def control_blocked(self) -> str | None:
         """Why commands that take control are refused (None: they are allowed)."""
-        return self._blocked
+        return self._tx.blocked
+
+    @property
+    def _pending_confirms(self) -> dict[int, int]:
+        """Frame number -> send time (ns) of the commands whose confirm is awaited."""
+        return self._tx.pending_confirms
 
     def stale_for_s(self) -> float:
         """Seconds since the last DebugOut (inf before the first)."""
-        if self._last_sample_ns is None:
-            return float("inf")
-        return (self._clock.now_ns() - self._last_sample_ns) / NS_PER_S
+        return self._rx.stale_for_s()
 
     async def next_sample(self, timeout_s: float | None = None) -> ImuSample:
         """The newest DebugOut as an :class:`ImuSample`, renewing the subscription as due.
 
         Older samples the consumer did not pick up are skipped (counted as dropped). While
         waiting: re-subscribe every ``stale_s`` without data; after ``release_after_stale_s``
-        with control taken, hand it back (see the module docstring).
+        with control taken, hand it back (see :mod:`mkflight.mk.subscription`).
 
         Raises:
             LinkError: the link failed, or nothing arrived within ``timeout_s``.
         """
-        s = self._settings
-        now = self._clock.now_ns()
-        if now - self._last_subscribe_ns >= int(s.resubscribe_s * NS_PER_S):
-            self.subscribe()
-        if self._want_version:
-            self._want_version = False
-            self._send("v", version_request())
-        started = now
-        while self._latest is None:
-            self._raise_if_failed()
-            now = self._clock.now_ns()
-            last = self._last_sample_ns if self._last_sample_ns is not None else started
-            stale_s = (now - last) / NS_PER_S
-            since_renewal_s = (now - max(last, self._last_subscribe_ns)) / NS_PER_S
-            if self._engaged and stale_s >= s.release_after_stale_s:
-                await self._release_stale()
-                continue
-            if since_renewal_s >= s.stale_s and now >= self._renew_after_ns:
-                self._on_stale()
-                since_renewal_s = 0.0
-            wait_s = s.stale_s - since_renewal_s
-            if self._engaged:
-                wait_s = min(wait_s, s.release_after_stale_s - stale_s)
-            if timeout_s is not None:
-                left_s = timeout_s - (now - started) / NS_PER_S
-                if left_s <= 0:
-                    msg = f"no DebugOut from {self.port} for {timeout_s:g} s"
-                    raise LinkError(msg)
-                wait_s = min(wait_s, left_s)
-            await self._wait_for_sample(max(wait_s, 0.001))
-        sample, self._latest = self._latest, None
-        return sample
-
-    async def _wait_for_sample(self, wait_s: float) -> None:
-        # Await the bare future (asyncio.wait_for would add an event-loop turn to every
-        # sample's path); a timer resolves it when the wait is over.
-        loop = asyncio.get_running_loop()
-        waiter = self._sample_waiter = loop.create_future()
-        timer = loop.call_later(wait_s, _resolve, waiter)
-        try:
-            await waiter
-        finally:
-            timer.cancel()
-            self._sample_waiter = None
-
-    def _on_stale(self) -> None:
-        if not self._stale:
-            self._stale = True
-            self.stats.stale_events += 1
-            log.warning("mk_data_stale", port=self.port, stale_s=self._settings.stale_s)
-            self._send("v", version_request())
-        self.subscribe()
-
-    async def _release_stale(self) -> None:
-        """No data for ``release_after_stale_s`` with control taken: the pilot's sticks rule."""
-        self.stats.stale_releases += 1
-        log.error("mk_stale_release", port=self.port, stale_s=self.stale_for_s())
-        await self.release()
-        self._blocked = "no DebugOut: control handed back to the pilot"
-        # Renewing 'd' would reload the FC's hold on a command our release may not have
-        # reached: stay quiet until the FC has certainly dropped it.
-        self._renew_after_ns = self._clock.now_ns() + int(FC_HOLD_S * NS_PER_S)
+        return await self._rx.next_sample(timeout_s)
 
     async def samples(self, timeout_s: float | None = None) -> AsyncIterator[ImuSample]:
         """Iterate over DebugOut samples (see :meth:`next_sample`)."""
         while True:
             yield await self.next_sample(timeout_s)
 
-    # ----- sending ---------------------------------------------------------------------
+    # ----- sending (delegated to the CommandSender, mkflight.mk.sender) -----------------
 
     def allow_control(self) -> None:
         """Let commands take control again after a release (the flight logic's decision)."""
         if self._closing is None:
-            self._blocked = None
+            self._tx.allow_control()
 
     def send_extern_control(self, command: ExternControl) -> int:
         """Send one ExternControl, numbered for a confirm; return its Frame number.
@@ -484,47 +365,11 @@ class MkLink:
             CommandRangeError: a field is non-finite, non-integral or beyond the limits.
             LinkError: the port is gone, or control was handed back (``control_blocked``).
         """
-        if self._port_dead:
-            raise self._error or LinkError(f"{self.port}: port closed")
-        payload = bytearray(command.pack())  # range-checks every field, or raises
-        self._check_limits(command)
-        takes_control = bool(payload[10] & EC_VALID)
-        if takes_control and self._blocked is not None:
-            msg = f"{self.port}: not taking control: {self._blocked}"
-            raise LinkError(msg)
-        self._frame_no = self._frame_no % 255 + 1
-        payload[EXTERN_FRAME_OFFSET] = self._frame_no
-        data = encode_frame(ADDR_FC, CMD_EXTERN, bytes(payload))
-        self._expire_confirms(self._clock.now_ns())
-        self._send("b", data, self._frame_no)
-        self._engaged = self._engaged or takes_control
-        self.stats.commands_sent += 1
-        return self._frame_no
-
-    def _check_limits(self, command: ExternControl) -> None:
-        s = self._settings
-        for name in ("nick", "roll", "yaw"):
-            value = getattr(command, name)
-            if abs(value) > s.stick_max_counts:
-                msg = f"ExternControl.{name} = {value} beyond +-{s.stick_max_counts}"
-                raise CommandRangeError(msg)
-        if not 0 <= command.gas <= s.gas_max or not math.isfinite(command.gas):
-            msg = f"ExternControl.gas = {command.gas} outside 0..{s.gas_max} (control.gas_max)"
-            raise CommandRangeError(msg)
+        return self._tx.send_extern_control(command)
 
     async def wait_confirm(self, frame_no: int, timeout_s: float) -> bool:
         """Wait until the confirm of ``frame_no`` arrives; False if it did not in time."""
-        loop = asyncio.get_running_loop()
-        deadline = loop.time() + timeout_s
-        while frame_no in self._pending_confirms or self._outbox.pending:
-            self._raise_if_failed()
-            self._confirm_event.clear()
-            left_s = deadline - loop.time()
-            if left_s <= 0:
-                return False
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._confirm_event.wait(), min(left_s, 0.01))
-        return True
+        return await self._tx.wait_confirm(frame_no, timeout_s)
 
     async def release(self, *, quick: bool = False) -> int:
         """Hand control back: neutral Config = 0 frames; return how many were confirmed.
@@ -533,30 +378,11 @@ class MkLink:
         ``quick`` sends the frames back to back (spaced by the line only) and does not
         wait for confirms: for a port where no FC ever answered.
         """
-        s = self._settings
-        self._blocked = self._blocked or "control released"
-        self._drop_confirms(self._outbox.cancel())  # no queued command may follow
-        before = self.stats.confirms
-        for i in range(s.release_frames):
-            self.send_extern_control(ExternControl.neutral())
-            await self._outbox.drained()  # each frame on the wire (none superseded)
-            if not quick and i + 1 < s.release_frames:
-                await asyncio.sleep(s.release_interval_s)
-        self._engaged = False
-        if not quick:
-            # The last confirm may queue behind a DebugOut (up to ~16 ms on the wire).
-            await self.wait_confirm(self._frame_no, RELEASE_CONFIRM_WAIT_S)
-        confirmed = self.stats.confirms - before
-        log.info("mk_released", port=self.port, frames=s.release_frames, confirmed=confirmed)
-        return confirmed
+        return await self._tx.release(quick=quick)
 
     async def drain(self) -> None:
         """Wait until every frame sent so far has been written and has left the wire."""
-        await self._outbox.drained()
-
-    def _send(self, kind: str, data: bytes, frame_no: int = 0) -> None:
-        self._outbox.send(kind, data, frame_no)
-        self.stats.delayed_writes = self._outbox.delayed
+        await self._tx.drained()
 
     def _write_now(self, kind: str, data: bytes, frame_no: int) -> None:
         """The outbox's writer: one frame to the port, now."""
@@ -567,17 +393,8 @@ class MkLink:
             self._port_dead = True
             self._fail(err)
             raise
-        if frame_no:
-            self._pending_confirms[frame_no] = t_ns
+        self._tx.written(frame_no, t_ns)
         self.stats.frames_written += 1
         self.stats.bytes_written += len(data)
         if self._tap is not None:
             self._tap("w", t_ns, data)
-
-    def _on_superseded(self, frame_no: int) -> None:
-        self.stats.superseded_commands += 1
-        self._pending_confirms.pop(frame_no, None)
-
-    def _drop_confirms(self, frame_numbers: list[int]) -> None:
-        for no in frame_numbers:
-            self._pending_confirms.pop(no, None)

@@ -11,105 +11,40 @@ still stream from an earlier run), ``SCIP2.0`` (``0`` or ``0E`` both mean succes
 to 0), ``VV``/``PP``/``II`` (the seven PP keys are required and used), then ``MD`` over
 the steps the configuration needs (scan and hat steps), every scan, until ``QT``.
 
-Stamping: each scan's 24-bit sensor timestamp (step 0) is unwrapped and mapped to the
-host clock by :class:`~mkflight.urg.timesync.SensorClock` (offset + drift), and the scan
-is stamped with the host time at which its front step (AFRT) was measured, not the time
-it arrived (~70 ms later for a full scan, plus USB).
+Stamping (:mod:`mkflight.urg.stamping`): each scan is stamped with the host time at which
+its front step (AFRT) was measured, mapped from its unwrapped 24-bit sensor timestamp by
+:class:`~mkflight.urg.timesync.SensorClock`, not with the time it arrived.
 
 Recovery (§6 items 3-5, 8): a scan with a bad sum is dropped and counted, a run of them
 re-issues MD; no scan for ``stall_s`` re-issues MD (QT, drain, MD with a new tag); error
 statuses in a stream re-issue MD and, repeated, fail; a vanished device is a
 :class:`~mkflight.errors.LinkError` naming the port, and :meth:`UrgDriver.reopen` tries
 again with back-off and the whole start-up. :meth:`UrgDriver.close` sends QT.
+
+Settings, start-up information and counters: :mod:`mkflight.urg.driver_types` (re-exported).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-from dataclasses import dataclass, field
 
-import numpy as np
 import structlog
 
 from mkflight.clock import Clock, MonotonicClock
-from mkflight.config import LaserConfig
 from mkflight.errors import LinkError, ProtocolError
+from mkflight.io.reopen import open_with_backoff
 from mkflight.io.stream import ByteStream, Opener, Tap
 from mkflight.msgs import Scan
 from mkflight.urg.codec import md_command, scip2_command, simple_command, tm_command
-from mkflight.urg.replies import InfoReply, ParserStats, Reply, ReplyParser, ScanReply
-from mkflight.urg.timesync import SensorClock
-from mkflight.urg.units import (
-    URG_04LX,
-    SensorParams,
-    TimestampUnwrapper,
-    parse_params,
-)
+from mkflight.urg.driver_types import UrgInfo, UrgSettings, UrgStats, settings_from_config
+from mkflight.urg.replies import InfoReply, Reply, ReplyParser, ScanReply
+from mkflight.urg.stamping import NS_PER_S, ScanStamper
+from mkflight.urg.units import URG_04LX, SensorParams, parse_params
+
+__all__ = ["UrgDriver", "UrgInfo", "UrgSettings", "UrgStats", "settings_from_config"]
 
 log = structlog.get_logger("mkflight.urg")
-
-NS_PER_S = 1_000_000_000
-
-
-@dataclass(frozen=True, slots=True)
-class UrgSettings:
-    """Steps to stream, the fixed transport delay and the timing of the recovery rules."""
-
-    first_step: int = 44
-    last_step: int = 725
-    request_timeout_s: float = 1.0
-    drain_silence_s: float = 0.15
-    drain_max_s: float = 1.0
-    stall_s: float = 0.3
-    transport_delay_s: float = 0.03
-    max_restarts: int = 5
-    sum_error_run: int = 3
-    reopen_backoff_s: float = 0.1
-    reopen_backoff_max_s: float = 2.0
-
-
-def settings_from_config(laser: LaserConfig) -> UrgSettings:
-    """Stream every step the configuration uses (hat and scan steps)."""
-    return UrgSettings(
-        first_step=min(laser.hat_steps[0], laser.scan_steps[0]),
-        last_step=max(laser.hat_steps[1], laser.scan_steps[1]),
-        stall_s=laser.stall_s,
-        transport_delay_s=laser.transport_delay_s,
-    )
-
-
-@dataclass(frozen=True, slots=True)
-class UrgInfo:
-    """What the sensor said about itself at start-up (VV, PP, II)."""
-
-    version: dict[str, str]
-    params: SensorParams
-    status: dict[str, str] = field(default_factory=dict)
-
-    @property
-    def summary(self) -> str:
-        """One line for humans: product, firmware, serial."""
-        v = self.version
-        return (
-            f"{v.get('PROD', '?')} firmware {v.get('FIRM', '?')} serial {v.get('SERI', '?')}, "
-            f"steps {self.params.amin_step}-{self.params.amax_step}, "
-            f"{self.params.scan_rpm} rpm"
-        )
-
-
-@dataclass(slots=True)
-class UrgStats:
-    """What the driver saw and did; ends up in ``flight.json``."""
-
-    parser: ParserStats = field(default_factory=ParserStats)
-    scans: int = 0
-    scans_dropped: int = 0
-    stale_stream_scans: int = 0
-    restarts: int = 0
-    stalls: int = 0
-    stream_errors: int = 0
-    reopens: int = 0
 
 
 def _resolve(waiter: asyncio.Future[None]) -> None:
@@ -140,8 +75,7 @@ class UrgDriver:
         self.stats.parser = self._parser.stats
         self.params: SensorParams = URG_04LX
         self.info: UrgInfo | None = None
-        self._sensor_clock = SensorClock()
-        self._unwrap = TimestampUnwrapper()
+        self._stamper = ScanStamper(self._s.transport_delay_s)
         self._reader: asyncio.Task[None] | None = None
         self._error: LinkError | None = None
         self._waiters: list[tuple[bytes, asyncio.Future[Reply]]] = []
@@ -181,8 +115,7 @@ class UrgDriver:
             await self._request(tm_command(2))
             reset = await self._request(simple_command("RS"))
         self._check(reset)
-        self._unwrap.reset()
-        self._sensor_clock.reset()
+        self._stamper.reset()
         try:
             version_info = (await self._info("VV")).info
         except LinkError as err:
@@ -264,21 +197,14 @@ class UrgDriver:
                 await self._reader
         with contextlib.suppress(LinkError, OSError):
             await self._stream.close()
-        loop = asyncio.get_running_loop()
-        deadline = loop.time() + max_wait_s
-        delay_s = self._s.reopen_backoff_s
-        while True:
-            try:
-                stream = await self._opener()
-                break
-            except LinkError as err:
-                if loop.time() + delay_s > deadline:
-                    msg = f"{self.port}: did not come back within {max_wait_s:g} s ({err})"
-                    raise LinkError(msg) from err
-                log.warning("urg_reopen_retry", port=self.port, error=str(err), wait_s=delay_s)
-                await asyncio.sleep(delay_s)
-                delay_s = min(delay_s * 2, self._s.reopen_backoff_max_s)
-        self._stream = stream
+        self._stream = await open_with_backoff(
+            self._opener,
+            port=self.port,
+            max_wait_s=max_wait_s,
+            backoff_s=self._s.reopen_backoff_s,
+            backoff_max_s=self._s.reopen_backoff_max_s,
+            log_event="urg_reopen_retry",
+        )
         self._parser.reset()
         self._error = None
         self._latest = None
@@ -398,22 +324,11 @@ class UrgDriver:
         self._on_scan(reply, t_ns)
 
     def _on_scan(self, reply: ScanReply, t_ns: int) -> None:
-        p = self.params
-        sensor_ms = self._unwrap.unwrap(reply.timestamp_ms)
-        # The message leaves after its end step was measured (§3.3), then crosses USB: a
-        # constant delay no data can reveal (it is indistinguishable from the offset), so
-        # it is configured; the varying rest is what the envelope removes.
-        known_ns = p.step_offset_ns(reply.end_step) + int(self._s.transport_delay_s * NS_PER_S)
-        self._sensor_clock.observe(sensor_ms, t_ns, known_ns)
-        front_ns = self._sensor_clock.to_host_ns(sensor_ms) + p.step_offset_ns(p.afront_step)
-        values = np.asarray(reply.values, dtype=np.float64)
-        ranges = np.where((values >= p.dmin_mm) & (values <= p.dmax_mm), values / 1000.0, np.nan)
+        scan = self._stamper.stamp(reply, t_ns, self.params, seq=self.stats.scans + 1)
         self.stats.scans += 1
         if self._latest is not None:
             self.stats.scans_dropped += 1
-        self._latest = Scan(
-            t_ns=front_ns, ranges_m=ranges, first_step=reply.start_step, seq=self.stats.scans
-        )
+        self._latest = scan
         self._last_scan_ns = t_ns
         self._sum_errors_seen = self._parser.stats.sum_errors
         self._restarts_in_a_row = 0

@@ -51,8 +51,9 @@ async def test_close_wins_over_a_task_still_sending_commands(
     async def control_task() -> None:
         with contextlib.suppress(LinkError):
             while True:
+                fc.received.clear()
                 link.send_extern_control(ExternControl(nick=20, gas=120, config=1))
-                await asyncio.sleep(0.01)
+                await fc.received.wait()  # paced by the FC receiving a frame, not a timer
 
     sender = asyncio.create_task(control_task())
     await asyncio.wait_for(_until(lambda: fc.count("b") >= 3, fc), 2.0)

@@ -1,0 +1,203 @@
+"""The receiving side of the FlightCtrl link: DebugOut samples, renewal, staleness.
+
+:class:`~mkflight.mk.link.MkLink` owns one :class:`DebugSubscription` and delegates
+``subscribe()``, ``next_sample()`` and ``stale_for_s()`` to it; the link's reader hands it
+every DebugOut. Each becomes a timestamped :class:`~mkflight.msgs.ImuSample`; only the
+newest waits for the consumer (latest-value sharing), the ones it replaced are counted as
+dropped.
+
+Safety rules (``mk-serial.md`` §7-8; SPEC §2, §5):
+
+* The subscription is renewed from :meth:`DebugSubscription.next_sample`, i.e. by the
+  consumer asking for its next sample: a stalled control step stops refreshing the FC's
+  hold on the last extern command, and the FC falls back to the pilot's sticks.
+* No DebugOut for ``stale_s``: re-subscribe (and ask the version again). Still none after
+  ``release_after_stale_s`` while we had control: hand control back (Config = 0) and stop
+  renewing for the FC's hold time, so that even an FC whose transmitter died but whose
+  receiver works ends extern control.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable
+
+import structlog
+
+from mkflight.clock import Clock
+from mkflight.errors import LinkError
+from mkflight.mk.link_types import NS_PER_S, LinkSettings, LinkStats
+from mkflight.mk.messages import DebugOut, debug_request, version_request
+from mkflight.mk.sender import CommandSender
+from mkflight.mk.units import MkCalibration, imu_from_debug
+from mkflight.msgs import ImuSample
+
+__all__ = ["FC_HOLD_S", "DebugSubscription"]
+
+log = structlog.get_logger("mkflight.mk")
+
+FC_HOLD_S = 5.5  # the FC drops extern control ~5.2 s after the last hold frame (§7.4)
+_OFF = -(10**18)
+
+
+def _resolve(waiter: asyncio.Future[None]) -> None:
+    if not waiter.done():
+        waiter.set_result(None)
+
+
+class DebugSubscription:
+    """DebugOut in, the newest ImuSample out; renews the subscription, watches staleness."""
+
+    def __init__(
+        self,
+        sender: CommandSender,
+        settings: LinkSettings,
+        stats: LinkStats,
+        calibration: MkCalibration,
+        clock: Clock,
+        *,
+        port: str,
+        start: Callable[[], None],
+        check_failed: Callable[[], None],
+    ) -> None:
+        """Build the receiving side of one link.
+
+        Args:
+            sender: the link's sending side ('d' and 'v' requests, the stale-data release).
+            settings: the link's settings (renewal and staleness times).
+            stats: the link's counters; this fills in those of samples and staleness.
+            calibration: converts DebugOut counts to SI.
+            clock: the injected clock that stamps samples and times staleness.
+            port: the port's name, for messages.
+            start: starts the link's reader task if it is not running (idempotent).
+            check_failed: raises the link's error if the link failed.
+        """
+        self._tx = sender
+        self._settings = settings
+        self._stats = stats
+        self._cal = calibration
+        self._clock = clock
+        self._port = port
+        self._start = start
+        self._check_failed = check_failed
+        self._latest: ImuSample | None = None
+        self._sample_waiter: asyncio.Future[None] | None = None
+        self._last_subscribe_ns = _OFF
+        self._last_sample_ns: int | None = None
+        self._stale = False
+        self._want_version = False
+        self._renew_after_ns = _OFF  # no 'd' before this (after a stale-data release)
+
+    def subscribe(self) -> None:
+        """Send the DebugOut subscription 'd' (also renews it and the FC's hold)."""
+        self._start()
+        if self._clock.now_ns() < self._renew_after_ns:
+            return  # after a stale-data release: no hold refresh yet (_release_stale)
+        self._tx.send("d", debug_request(self._settings.debug_interval_10ms))
+        self._last_subscribe_ns = self._clock.now_ns()
+        self._stats.subscriptions += 1
+
+    def unsubscribe(self) -> None:
+        """Stop the DebugOut stream ('d' with interval 0): the link is closing."""
+        self._tx.send("d", debug_request(0))
+
+    def resume_renewals(self) -> None:
+        """Renew again from now on (the port was re-opened and control handed back)."""
+        self._renew_after_ns = _OFF
+
+    def forget_sample(self) -> None:
+        """Drop the sample the consumer has not picked up (it came from an old port)."""
+        self._latest = None
+
+    def on_debug(self, debug: DebugOut, t_ns: int) -> None:
+        """A DebugOut arrived at ``t_ns``: make it the newest sample, wake the consumer."""
+        self._last_sample_ns = t_ns
+        self._stats.samples += 1
+        if self._latest is not None:
+            self._stats.samples_dropped += 1  # the consumer fell behind: newest wins
+        self._latest = imu_from_debug(debug, t_ns, self._cal)
+        if self._stale:
+            self._stale = False
+            self._renew_after_ns = _OFF
+            # Ask who is there now (an FC that rebooted was deaf to the stale-time 'v'),
+            # from the consumer's next call so that it cannot delay this sample's command.
+            self._want_version = True
+            log.info("mk_data_resumed", port=self._port)
+        self.wake()
+
+    def wake(self) -> None:
+        """Wake a waiting :meth:`next_sample` (a sample arrived, or the link failed)."""
+        waiter = self._sample_waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
+
+    def stale_for_s(self) -> float:
+        """Seconds since the last DebugOut (inf before the first)."""
+        if self._last_sample_ns is None:
+            return float("inf")
+        return (self._clock.now_ns() - self._last_sample_ns) / NS_PER_S
+
+    async def next_sample(self, timeout_s: float | None = None) -> ImuSample:
+        """The newest DebugOut as an :class:`ImuSample` (see ``MkLink.next_sample``)."""
+        s = self._settings
+        now = self._clock.now_ns()
+        if now - self._last_subscribe_ns >= int(s.resubscribe_s * NS_PER_S):
+            self.subscribe()
+        if self._want_version:
+            self._want_version = False
+            self._tx.send("v", version_request())
+        started = now
+        while self._latest is None:
+            self._check_failed()
+            now = self._clock.now_ns()
+            last = self._last_sample_ns if self._last_sample_ns is not None else started
+            stale_s = (now - last) / NS_PER_S
+            since_renewal_s = (now - max(last, self._last_subscribe_ns)) / NS_PER_S
+            if self._tx.engaged and stale_s >= s.release_after_stale_s:
+                await self._release_stale()
+                continue
+            if since_renewal_s >= s.stale_s and now >= self._renew_after_ns:
+                self._on_stale()
+                since_renewal_s = 0.0
+            wait_s = s.stale_s - since_renewal_s
+            if self._tx.engaged:
+                wait_s = min(wait_s, s.release_after_stale_s - stale_s)
+            if timeout_s is not None:
+                left_s = timeout_s - (now - started) / NS_PER_S
+                if left_s <= 0:
+                    msg = f"no DebugOut from {self._port} for {timeout_s:g} s"
+                    raise LinkError(msg)
+                wait_s = min(wait_s, left_s)
+            await self._wait_for_sample(max(wait_s, 0.001))
+        sample, self._latest = self._latest, None
+        return sample
+
+    async def _wait_for_sample(self, wait_s: float) -> None:
+        # Await the bare future (asyncio.wait_for would add an event-loop turn to every
+        # sample's path); a timer resolves it when the wait is over.
+        loop = asyncio.get_running_loop()
+        waiter = self._sample_waiter = loop.create_future()
+        timer = loop.call_later(wait_s, _resolve, waiter)
+        try:
+            await waiter
+        finally:
+            timer.cancel()
+            self._sample_waiter = None
+
+    def _on_stale(self) -> None:
+        if not self._stale:
+            self._stale = True
+            self._stats.stale_events += 1
+            log.warning("mk_data_stale", port=self._port, stale_s=self._settings.stale_s)
+            self._tx.send("v", version_request())
+        self.subscribe()
+
+    async def _release_stale(self) -> None:
+        """No data for ``release_after_stale_s`` with control taken: the pilot's sticks rule."""
+        self._stats.stale_releases += 1
+        log.error("mk_stale_release", port=self._port, stale_s=self.stale_for_s())
+        await self._tx.release()
+        self._tx.block("no DebugOut: control handed back to the pilot")
+        # Renewing 'd' would reload the FC's hold on a command our release may not have
+        # reached: stay quiet until the FC has certainly dropped it.
+        self._renew_after_ns = self._clock.now_ns() + int(FC_HOLD_S * NS_PER_S)

@@ -1,0 +1,51 @@
+"""Scan records from MD replies: ranges in metres, stamped with the host time of the front.
+
+Each scan's 24-bit sensor timestamp (step 0) is unwrapped and mapped to the host clock by
+:class:`~mkflight.urg.timesync.SensorClock` (offset + drift), and the scan is stamped with
+the host time at which its front step (AFRT) was measured, not the time it arrived (~70 ms
+later for a full scan, plus USB). Values outside [DMIN, DMAX] (error codes) become NaN,
+never a distance. Pure: the driver hands in the reply, its arrival time and the sensor's
+parameters.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mkflight.msgs import Scan
+from mkflight.urg.replies import ScanReply
+from mkflight.urg.timesync import SensorClock
+from mkflight.urg.units import SensorParams, TimestampUnwrapper
+
+__all__ = ["NS_PER_S", "ScanStamper"]
+
+NS_PER_S = 1_000_000_000
+
+
+class ScanStamper:
+    """Turns the scans of one sensor into :class:`~mkflight.msgs.Scan` records."""
+
+    def __init__(self, transport_delay_s: float) -> None:
+        """Stamp with the fixed USB latency ``transport_delay_s`` (s, configured)."""
+        self._transport_delay_s = transport_delay_s
+        self._unwrap = TimestampUnwrapper()
+        self._sensor_clock = SensorClock()
+
+    def reset(self) -> None:
+        """Forget the timer's history: the sensor's timer was reset (RS)."""
+        self._unwrap.reset()
+        self._sensor_clock.reset()
+
+    def stamp(self, reply: ScanReply, t_ns: int, params: SensorParams, seq: int) -> Scan:
+        """The record of ``reply``, which arrived at host time ``t_ns``; ``seq`` numbers it."""
+        p = params
+        sensor_ms = self._unwrap.unwrap(reply.timestamp_ms)
+        # The message leaves after its end step was measured (§3.3), then crosses USB: a
+        # constant delay no data can reveal (it is indistinguishable from the offset), so
+        # it is configured; the varying rest is what the envelope removes.
+        known_ns = p.step_offset_ns(reply.end_step) + int(self._transport_delay_s * NS_PER_S)
+        self._sensor_clock.observe(sensor_ms, t_ns, known_ns)
+        front_ns = self._sensor_clock.to_host_ns(sensor_ms) + p.step_offset_ns(p.afront_step)
+        values = np.asarray(reply.values, dtype=np.float64)
+        ranges = np.where((values >= p.dmin_mm) & (values <= p.dmax_mm), values / 1000.0, np.nan)
+        return Scan(t_ns=front_ns, ranges_m=ranges, first_step=reply.start_step, seq=seq)
