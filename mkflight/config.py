@@ -78,8 +78,8 @@ class EstimationConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, 
     """Complementary filter (seed §H eq 15-17) and latency compensation (eq 18-20)."""
 
     filter_period_s: Annotated[float, Meta(gt=0, le=1)] = 0.05
-    filter_gain_per_s: Gain = 0.5
-    filter_gain_z_per_s: Gain = 0.5
+    filter_gain_per_s: Gain = 2.0
+    filter_gain_z_per_s: Gain = 4.0
     latency_compensation: bool = True
     imu_history_s: Annotated[float, Meta(gt=0, le=5)] = 0.5
 
@@ -87,25 +87,25 @@ class EstimationConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, 
 class ControlConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """Position, velocity, yaw and altitude loops and their limits (SPEC §4, seed §C, J, K)."""
 
-    kp_xy: Gain = 1.0
+    kp_xy: Gain = 2.5
     ki_xy: Gain = 0.3
     kd_xy: Gain = 0.0
     max_speed_mps: Annotated[float, Meta(gt=0, le=5)] = 0.5
-    kp_vxy: Gain = 2.0
-    ki_vxy: Gain = 0.0
-    kd_vxy: Gain = 0.0
+    kp_vxy: Gain = 4.0
+    ki_vxy: Gain = 0.5
+    kd_vxy: Gain = 0.5
     max_tilt_rad: Annotated[float, Meta(gt=0, le=0.6)] = 0.30
     kp_yaw: Gain = 40.0
     ki_yaw: Gain = 0.0
     kd_yaw: Gain = 0.0
     yaw_max_counts: Annotated[int, Meta(ge=0, le=127)] = 40
-    kp_z: Gain = 1.5
-    ki_z: Gain = 0.3
+    kp_z: Gain = 4.0
+    ki_z: Gain = 0.0
     kd_z: Gain = 0.0
     max_climb_mps: Annotated[float, Meta(gt=0, le=2)] = 0.5
-    kp_vz: Gain = 30.0
-    ki_vz: Gain = 10.0
-    kd_vz: Gain = 0.0
+    kp_vz: Gain = 60.0
+    ki_vz: Gain = 20.0
+    kd_vz: Gain = 5.0
     integral_limit_gas: Annotated[float, Meta(ge=0, le=255)] = 30.0
     hover_gas: Annotated[float, Meta(ge=0, le=255)] = 100.0
     hover_voltage_v: PosFloat = 11.8

@@ -28,16 +28,16 @@ from pathlib import Path
 import numpy as np
 
 from mkflight.config import Config
-from mkflight.control.controller import Controller
-from mkflight.control.phases import Phase, PhaseParams, PhaseRequests, PhaseState, phase_step
-from mkflight.estimation.estimator import Estimator
+from mkflight.control.phases import Phase, PhaseRequests
+from mkflight.flight.step import FlightCore, PilotSticks
+from mkflight.logs.events import EventsWriter
 from mkflight.logs.flight_json import new_flight_info, with_summary, write_flight_json
-from mkflight.logs.table3 import Table3Row, Table3Writer
-from mkflight.logs.table4 import Table4Row, Table4Writer
+from mkflight.logs.table3 import Table3Writer
+from mkflight.logs.table4 import Table4Writer
 from mkflight.mk.messages import ANALOG_GAS, ANALOG_RECEIVER_LEVEL, DebugOut
 from mkflight.mk.units import MkCalibration, analog_from_si, imu_from_debug
-from mkflight.msgs import Command, Pose2D
-from mkflight.safety.failsafe import Failsafe, FailsafeAction, FailsafeInputs
+from mkflight.msgs import Pose2D
+from mkflight.safety.failsafe import FailsafeAction
 from mkflight.sim.vehicle import (
     Sticks,
     VehicleParams,
@@ -113,35 +113,26 @@ def run_hover(
     params = VehicleParams.from_config(cfg)
     vehicle: VehicleState = initial_state(params, rng)
     cal = MkCalibration.from_config(cfg.mk)
-    estimator = Estimator(cfg.estimation, cfg.mk.g_mps2, pose_stale_s=cfg.safety.laser_stale_s)
-    controller = Controller(cfg.control, cfg.mk)
-    failsafe = Failsafe(cfg.safety)
-    overrides = {} if height_m is None else {"takeoff_height_m": height_m}
-    phase_params = PhaseParams.from_config(cfg.control, cfg.mk.handshake_s, **overrides)
-    phase = PhaseState()
+    core = FlightCore(cfg, height_m=height_m)
     stick_gas = cfg.sim.fc.stick_gas
 
     log_dir.mkdir(parents=True, exist_ok=True)
     info = new_flight_info(datetime.now(UTC), cfg, fc_version=cfg.sim.fc.version)
     write_flight_json(log_dir, info)
-    t3, t4 = Table3Writer(log_dir), Table4Writer(log_dir)
+    t3, t4, events = Table3Writer(log_dir), Table4Writer(log_dir), EventsWriter(log_dir)
     truth = (log_dir / "truth.txt").open("x", encoding="utf-8")
     truth.write("t x y z\n")
 
     sticks = Sticks()
-    last_cmd = Command(0, 0, 0, 0, 0, take_control=False)
     pending: deque[tuple[int, Pose2D, float]] = deque()  # (delivery t_ns, pose, height)
     next_scan_ns = 0
-    last_pose_ns: int | None = None
     end_ns = int(duration_s * NS_PER_S)
     stop_ns = end_ns + int(LAND_MARGIN_S * NS_PER_S)
     err_x: list[float] = []
     err_y: list[float] = []
     err_z: list[float] = []
     hold_start_ns: int | None = None
-    failsafe_log: list[str] = []
     t_ns = 0
-    index4 = index3 = 0
     steps = 0
     try:
         while t_ns < stop_ns:
@@ -167,26 +158,9 @@ def run_hover(
             # The laser poses whose delay has passed arrive now (TABLE III step).
             while pending and pending[0][0] <= t_ns:
                 _, pose, height = pending.popleft()
-                estimator.on_pose(pose)
-                estimator.on_height(pose.t_ns, height)
-                last_pose_ns = pose.t_ns
-                ls = estimator.laser_step
-                if ls is not None:
-                    index3 += 1
-                    t3.write_row(
-                        Table3Row(
-                            ls.w_vel_x_mps,
-                            ls.b_vel_x_mps,
-                            ls.b_esti_vel_x_mps,
-                            ls.w_vel_y_mps,
-                            ls.b_vel_y_mps,
-                            ls.b_esti_vel_y_mps,
-                            ls.x_m,
-                            ls.y_m,
-                            ls.yaw_rad,
-                            index3,
-                        )
-                    )
+                row3 = core.laser_step(pose, height, t_ns=pose.t_ns)
+                if row3 is not None:
+                    t3.write_row(row3)
             # The FC's DebugOut: measured, in MK counts, back to SI (SPEC §1 both ways).
             m = imu_measured_si(vehicle, params, rng)
             battery = battery_reading_v(vehicle, params, rng)
@@ -203,67 +177,29 @@ def run_hover(
             analog[ANALOG_GAS] = 4 * int(sticks.gas_counts)
             analog[ANALOG_RECEIVER_LEVEL] = 200
             imu = imu_from_debug(DebugOut.from_values(analog), t_ns, cal)
-            est = estimator.on_imu(imu)
-            # Failsafe, phases, controllers (the 50 ms step).
-            laser_age = math.inf if last_pose_ns is None else (t_ns - last_pose_ns) / NS_PER_S
-            flying = phase.phase in (Phase.TAKEOFF, Phase.HOLD, Phase.LAND)
-            fs = failsafe.update(
-                FailsafeInputs(
-                    t_ns=t_ns,
-                    values_finite=True,
-                    laser_age_s=laser_age if flying else 0.0,
-                    scan_degenerate=False,
-                    mk_age_s=0.0,
-                    x_m=est.x_m,
-                    y_m=est.y_m,
-                    height_m=est.height_m,
-                    battery_v=imu.battery_v,
-                    stop=None,
-                    pilot_override=False,
-                )
+            out = core.imu_step(
+                imu,
+                PhaseRequests(
+                    takeoff=True,
+                    land=t_ns >= end_ns,
+                    handshake_ok=t_ns >= int(cfg.mk.handshake_s * NS_PER_S),
+                ),
+                sticks=PilotSticks(thrust_counts=stick_gas),
             )
-            failsafe_log += [
-                f"{e.t_ns / NS_PER_S:.2f}s {e.action.name} {e.cause}" for e in fs.events
-            ]
-            requests = PhaseRequests(
-                takeoff=t_ns >= 0,
-                land=t_ns >= end_ns,
-                handshake_ok=t_ns >= int(cfg.mk.handshake_s * NS_PER_S),
-            )
-            out_phase = phase_step(
-                phase_params,
-                phase,
-                t_ns=t_ns,
-                est=est,
-                requests=requests,
-                failsafe=fs.action,
-                last_gas_counts=last_cmd.gas_counts,
-            )
-            phase = out_phase.state
-            command = Command(t_ns, 0, 0, 0, 0, take_control=out_phase.take_control)
-            if out_phase.run_controllers and out_phase.setpoint is not None:
-                dt_s = IMU_PERIOD_NS / NS_PER_S
-                control = controller.update(
-                    est,
-                    out_phase.setpoint,
-                    (imu.pitch_rad, imu.roll_rad),
-                    imu.battery_v,
-                    dt_s,
-                    mode=out_phase.mode,
-                    take_control=out_phase.take_control,
-                )
-                command = control.command if control.valid and control.command else last_cmd
-                if out_phase.phase is Phase.HOLD:
-                    sp = out_phase.setpoint
-                    if hold_start_ns is None:
-                        hold_start_ns = t_ns
-                    if t_ns - hold_start_ns >= SETTLE_S * NS_PER_S and t_ns < end_ns:
-                        err_x.append(float(vehicle.pos_w_m[0]) - sp.x_m)
-                        err_y.append(float(vehicle.pos_w_m[1]) - sp.y_m)
-                        err_z.append(vehicle.height_m - sp.height_m)
-            if out_phase.gas_cut:
-                command = Command(t_ns, 0, 0, 0, 0, take_control=command.take_control)
-            last_cmd = command
+            command = out.command
+            t4.write_row(out.row)
+            for e in out.failsafe_events:
+                events.write(e.t_ns, "failsafe", action=e.action.name, cause=str(e.cause))
+            for pe in out.phase_events:
+                events.write(pe.t_ns, "phase", to=pe.to_phase.name, reason=pe.reason)
+            if out.phase is Phase.HOLD and out.estimate.pose_valid:
+                sp = core.phase_state.setpoint
+                if hold_start_ns is None:
+                    hold_start_ns = t_ns
+                if sp is not None and t_ns - hold_start_ns >= SETTLE_S * NS_PER_S and t_ns < end_ns:
+                    err_x.append(float(vehicle.pos_w_m[0]) - sp.x_m)
+                    err_y.append(float(vehicle.pos_w_m[1]) - sp.y_m)
+                    err_z.append(vehicle.height_m - sp.height_m)
             # The FC applies it: extern added to the (neutral) sticks, gas capped (§7.4).
             if command.take_control:
                 sticks = Sticks(
@@ -274,31 +210,13 @@ def run_hover(
                 )
             else:
                 sticks = Sticks()
-            index4 += 1
-            t4.write_row(
-                Table4Row(
-                    imu.pitch_rad,
-                    imu.roll_rad,
-                    imu.yaw_rad,
-                    imu.acc_x_mps2,
-                    imu.acc_y_mps2,
-                    imu.acc_z_mps2,
-                    command.nick_counts,
-                    command.roll_counts,
-                    command.yaw_counts,
-                    0,
-                    0,
-                    0,
-                    stick_gas,
-                    index4,
-                )
-            )
             steps += 1
-            if phase.phase is Phase.RELEASED:
+            if out.phase is Phase.RELEASED:
                 break
     finally:
         t3.close()
         t4.close()
+        events.close()
         truth.close()
     wall_s = time.perf_counter() - wall0
     cpu_us = (time.process_time() - cpu0) / max(steps, 1) * 1e6
@@ -318,8 +236,8 @@ def run_hover(
         sim_s=sim_s,
         wall_s=wall_s,
         hold_s=len(err_x) * IMU_PERIOD_NS / NS_PER_S,
-        landed=phase.phase in (Phase.LANDED, Phase.RELEASED),
-        failsafes=failsafe_log,
+        landed=core.phase in (Phase.LANDED, Phase.RELEASED),
+        failsafes=core.counters.failsafe_events,
         cpu_us_per_step=cpu_us,
     )
     write_flight_json(log_dir, with_summary(info, result.as_dict()))

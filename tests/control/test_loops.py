@@ -96,14 +96,16 @@ def test_velocity_setpoint_norm_limited() -> None:
 
 
 def test_eq21_velocity_p_controller_numbers() -> None:
-    # Hover (v* = 0) drifting forward at 0.1 m/s: a_W.x = -kp_vxy * 0.1, pitch = -a_x/g.
+    # Hover (v* = 0) drifting forward at 0.1 m/s: a_W.x = -kp_vxy * 0.1, pitch = -a_x/g
+    # (eq 21's P part: the tuned integral and derivative are switched off here).
+    p_only = msgspec.structs.replace(CTRL, ki_vxy=0.0, kd_vxy=0.0)
     res = position_step(
-        CTRL, MK, PositionState(), x_sp_m=0, y_sp_m=0, x_m=0, y_m=0, vx_mps=0.1, vy_mps=0,
+        p_only, MK, PositionState(), x_sp_m=0, y_sp_m=0, x_m=0, y_m=0, vx_mps=0.1, vy_mps=0,
         yaw_rad=0, dt_s=0.05,
     )  # fmt: skip
     assert res is not None
-    assert res.acc_x_w_mps2 == pytest.approx(-CTRL.kp_vxy * 0.1)
-    assert res.pitch_sp_rad == pytest.approx(CTRL.kp_vxy * 0.1 / MK.g_mps2)
+    assert res.acc_x_w_mps2 == pytest.approx(-p_only.kp_vxy * 0.1)
+    assert res.pitch_sp_rad == pytest.approx(p_only.kp_vxy * 0.1 / MK.g_mps2)
     assert res.nick_counts == round(-1 * res.pitch_sp_rad * 120.0)
 
 

@@ -1,0 +1,1 @@
+"""The flight: the pure step (step.py); the asyncio daemon comes with `fly`."""
