@@ -1,0 +1,122 @@
+"""FlightCore: whatever comes in, every command goes out within its limits (SPEC §4-5)."""
+
+from __future__ import annotations
+
+import math
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mkflight.config import Config
+from mkflight.control.limits import command_within_limits
+from mkflight.control.phases import Phase, PhaseRequests
+from mkflight.flight.step import FlightCore
+from mkflight.msgs import ImuSample, Pose2D
+from mkflight.safety.failsafe import FailsafeAction
+
+CFG = Config()
+STEP_NS = 53_248_000
+ANY = st.floats(allow_nan=True, allow_infinity=True, width=64)
+NEAR = st.floats(-2.0, 2.0)
+
+
+def level_imu(t_ns: int, **overrides: float) -> ImuSample:
+    values = dict(
+        pitch_rad=0.0,
+        roll_rad=0.0,
+        yaw_rad=0.0,
+        acc_x_mps2=0.0,
+        acc_y_mps2=0.0,
+        acc_z_mps2=-9.81,
+        battery_v=12.0,
+    )
+    values.update(overrides)
+    return ImuSample(t_ns=t_ns, gas_counts=100, receiver_level=200, **values)
+
+
+def fly_to_hold(core: FlightCore) -> int:
+    """Feed a vehicle that rises as commanded (just enough for the phases to reach HOLD)."""
+    t_ns, height = 0, 0.0
+    for _ in range(200):
+        t_ns += STEP_NS
+        if t_ns % (2 * STEP_NS) == 0:
+            core.laser_step(Pose2D(t_ns, 0.0, 0.0, 0.0), height, t_ns=t_ns)
+        out = core.imu_step(level_imu(t_ns), PhaseRequests(takeoff=True, handshake_ok=t_ns > 1e9))
+        if out.phase is Phase.TAKEOFF:
+            height = min(0.6, height + 0.3 * STEP_NS * 1e-9)
+        if out.phase is Phase.HOLD:
+            return t_ns
+    raise AssertionError("never reached HOLD")
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            ANY, ANY, ANY, ANY, ANY, ANY, ANY, st.one_of(st.none(), st.tuples(ANY, ANY, ANY)), ANY
+        ),
+        min_size=1,
+        max_size=30,
+    )
+)
+def test_every_command_is_within_limits_whatever_the_inputs(
+    steps: list[
+        tuple[
+            float,
+            float,
+            float,
+            float,
+            float,
+            float,
+            float,
+            tuple[float, float, float] | None,
+            float,
+        ]
+    ],
+) -> None:
+    core = FlightCore(CFG)
+    t_ns = fly_to_hold(core)
+    for pitch, roll, yaw, ax, ay, az, volts, pose, height in steps:
+        t_ns += STEP_NS
+        if pose is not None:
+            core.laser_step(Pose2D(t_ns - 100_000_000, *pose), height, t_ns=t_ns - 100_000_000)
+        imu = level_imu(
+            t_ns, pitch_rad=pitch, roll_rad=roll, yaw_rad=yaw, acc_x_mps2=ax,
+            acc_y_mps2=ay, acc_z_mps2=az, battery_v=volts,
+        )  # fmt: skip
+        out = core.imu_step(imu, PhaseRequests(takeoff=True, handshake_ok=True))
+        assert command_within_limits(out.command, CFG.control), out.command
+        assert 0 <= out.command.gas_counts <= CFG.control.gas_max
+        assert math.isfinite(out.estimate.x_m)
+
+
+def test_nonfinite_steps_send_the_last_safe_command_then_land() -> None:
+    core = FlightCore(CFG)
+    t_ns = fly_to_hold(core)
+    last = core.last_command
+    actions = []
+    for _ in range(CFG.safety.nonfinite_land_steps):
+        t_ns += STEP_NS
+        out = core.imu_step(
+            level_imu(t_ns, pitch_rad=math.nan), PhaseRequests(takeoff=True, handshake_ok=True)
+        )
+        actions.append(out.action)
+        assert out.used_last_command
+        assert (out.command.nick_counts, out.command.gas_counts) == (
+            last.nick_counts,
+            last.gas_counts,
+        )
+    assert actions[-1] is FailsafeAction.LAND
+
+
+@given(NEAR, NEAR)
+@settings(max_examples=30, deadline=None)
+def test_tilt_commands_stay_within_max_tilt(x_err: float, y_err: float) -> None:
+    core = FlightCore(CFG)
+    t_ns = fly_to_hold(core)
+    for _ in range(5):
+        t_ns += STEP_NS
+        core.laser_step(Pose2D(t_ns, x_err, y_err, 0.0), 0.6, t_ns=t_ns)
+        out = core.imu_step(level_imu(t_ns), PhaseRequests(takeoff=True, handshake_ok=True))
+        tilt_rad = math.hypot(out.command.nick_counts, out.command.roll_counts) / 120.0
+        assert tilt_rad <= CFG.control.max_tilt_rad + 1.5 / 120.0  # + rounding to counts
