@@ -169,11 +169,34 @@ class SimFcConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_on
     battery_v: Annotated[float, Meta(ge=0, le=60)] = 12.4
 
 
+class SimVehicleConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """The simulated airframe (``mkflight.sim.vehicle``, SPEC §8): what the loops must cope with.
+
+    ``hover_gas`` is the airframe's true hover gas at ``control.hover_voltage_v``; it
+    differs from ``control.hover_gas`` (the controller's feed-forward) on purpose, as a
+    real airframe does from its tuning.
+    """
+
+    mass_kg: Annotated[float, Meta(gt=0, le=20)] = 1.04
+    hover_gas: Annotated[float, Meta(gt=0, le=255)] = 104.0
+    attitude_delay_s: Annotated[float, Meta(ge=0, le=1)] = 0.1
+    attitude_tau_s: Annotated[float, Meta(gt=0, le=2)] = 0.1
+    gusts: bool = True
+    wind_std_mps: Annotated[float, Meta(ge=0, le=5)] = 0.1
+    wind_tau_s: Annotated[float, Meta(gt=0, le=60)] = 2.0
+    trim_std_rad: Annotated[float, Meta(ge=0, le=0.2)] = 0.005
+    acc_bias_std_mps2: Annotated[float, Meta(ge=0, le=2)] = 0.05
+    vibration_std_mps2: Annotated[float, Meta(ge=0, le=5)] = 0.2
+    battery_capacity_ah: Annotated[float, Meta(gt=0, le=50)] = 2.2
+    battery_used_ah: Annotated[float, Meta(ge=0, le=50)] = 0.0
+
+
 class SimConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """The simulator (SPEC §8)."""
 
     seed: Annotated[int, Meta(ge=0)] = 1
     fc: SimFcConfig = msgspec.field(default_factory=SimFcConfig)
+    vehicle: SimVehicleConfig = msgspec.field(default_factory=SimVehicleConfig)
 
 
 class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):

@@ -111,7 +111,7 @@ def run_hover(
     wall0, cpu0 = time.perf_counter(), time.process_time()
     rng = np.random.default_rng(seed)
     params = VehicleParams.from_config(cfg)
-    vehicle: VehicleState = initial_state(params, rng)
+    vehicle: VehicleState = initial_state(params, rng, used_ah=cfg.sim.vehicle.battery_used_ah)
     cal = MkCalibration.from_config(cfg.mk)
     core = FlightCore(cfg, height_m=height_m)
     stick_gas = cfg.sim.fc.stick_gas

@@ -101,15 +101,26 @@ class VehicleParams:
 
     @classmethod
     def from_config(cls, cfg: Config) -> VehicleParams:
-        """Take counts, signs, g and hover gas/voltage from the config (other defaults kept)."""
+        """Counts, signs and g from ``mk``; the airframe from ``sim.vehicle``; rest default."""
+        v = cfg.sim.vehicle
         return cls(
             g_mps2=cfg.mk.g_mps2,
             counts_per_rad=cfg.mk.counts_per_rad,
             nick_sign=cfg.mk.signs.nick,
             roll_sign=cfg.mk.signs.roll,
             yaw_sign=cfg.mk.signs.yaw,
-            hover_gas_counts=cfg.control.hover_gas,
+            mass_kg=v.mass_kg,
+            hover_gas_counts=v.hover_gas,
             hover_voltage_v=cfg.control.hover_voltage_v,
+            attitude_delay_s=v.attitude_delay_s,
+            attitude_tau_s=v.attitude_tau_s,
+            gusts=v.gusts,
+            wind_std_mps=v.wind_std_mps,
+            wind_tau_s=v.wind_tau_s,
+            pitch_trim_std_rad=v.trim_std_rad,
+            acc_bias_std_mps2=v.acc_bias_std_mps2,
+            vibration_std_mps2=v.vibration_std_mps2,
+            battery_capacity_ah=v.battery_capacity_ah,
         )
 
 
