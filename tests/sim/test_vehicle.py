@@ -52,11 +52,13 @@ def _fly(
     return s
 
 
-def test_defaults_hover_at_the_configs_hover_gas_and_voltage() -> None:
-    p = VehicleParams.from_config(Config())
-    assert p.hover_gas_counts == Config().control.hover_gas == 100
-    assert thrust_n(100, 11.8, p) == pytest.approx(p.mass_kg * p.g_mps2)
-    assert thrust_n(100, 11.8 * 0.9, p) == pytest.approx(0.81 * p.mass_kg * p.g_mps2)
+def test_defaults_hover_at_the_airframes_hover_gas_not_the_controllers() -> None:
+    cfg = Config()
+    p = VehicleParams.from_config(cfg)
+    assert p.hover_gas_counts == cfg.sim.vehicle.hover_gas == 104
+    assert cfg.control.hover_gas == 100  # the controller's feed-forward is off by 4 %
+    assert thrust_n(104, 11.8, p) == pytest.approx(p.mass_kg * p.g_mps2)
+    assert thrust_n(104, 11.8 * 0.9, p) == pytest.approx(0.81 * p.mass_kg * p.g_mps2)
 
 
 def test_hover_gas_holds_altitude() -> None:
