@@ -27,6 +27,7 @@ import statistics
 import time
 import tty
 from collections.abc import Callable, Coroutine
+from pathlib import Path
 from typing import Any
 
 from mkflight.mk.codec import FrameParser
@@ -83,6 +84,55 @@ def bench_codec(seconds: float = 1.0) -> dict[str, float]:
     return {
         "extern_control_encode_per_s": rate(encode_commands),
         "debugout_decode_to_si_per_s": rate(decode_debug),
+    }
+
+
+# ----- the flight step -----------------------------------------------------------------
+
+
+def bench_step(duration_s: float = 60.0) -> dict[str, float]:
+    """CPU time of FlightCore.imu_step / laser_step along a simulated hover (median, p99).
+
+    The onboard computer is a ~1 GHz ARM: these are the figures to scale, not the
+    simulator's wall time (which includes the vehicle model).
+    """
+    import tempfile
+
+    from mkflight.config import Config
+    from mkflight.flight import step as flight_step
+    from mkflight.sim.hover import run_hover
+
+    imu_us: list[float] = []
+    laser_us: list[float] = []
+    core_cls = flight_step.FlightCore
+    imu_step, laser_step = core_cls.imu_step, core_cls.laser_step
+
+    def timed_imu(self: Any, *a: Any, **k: Any) -> Any:
+        t0 = time.process_time_ns()
+        out = imu_step(self, *a, **k)
+        imu_us.append((time.process_time_ns() - t0) / 1e3)
+        return out
+
+    def timed_laser(self: Any, *a: Any, **k: Any) -> Any:
+        t0 = time.process_time_ns()
+        out = laser_step(self, *a, **k)
+        laser_us.append((time.process_time_ns() - t0) / 1e3)
+        return out
+
+    core_cls.imu_step = timed_imu  # type: ignore[method-assign]
+    core_cls.laser_step = timed_laser  # type: ignore[method-assign]
+    try:
+        with tempfile.TemporaryDirectory() as folder:
+            run_hover(Config(), duration_s=duration_s, seed=1, log_dir=Path(folder) / "f")
+    finally:
+        core_cls.imu_step = imu_step  # type: ignore[method-assign]
+        core_cls.laser_step = laser_step  # type: ignore[method-assign]
+    return {
+        "imu_step_median_us": statistics.median(imu_us),
+        "imu_step_p99_us": percentile(imu_us, 99),
+        "laser_step_median_us": statistics.median(laser_us),
+        "laser_step_p99_us": percentile(laser_us, 99),
+        "steps": float(len(imu_us)),
     }
 
 
@@ -220,7 +270,9 @@ def summarize(values: list[float]) -> dict[str, float]:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", choices=("codec", "latency", "scanmatch"), help="run one group")
+    parser.add_argument(
+        "--only", choices=("codec", "latency", "scanmatch", "step"), help="run one group"
+    )
     parser.add_argument("--samples", type=int, default=400, help="latency samples per variant")
     parser.add_argument("--rounds", type=int, default=3, help="alternating rounds per variant")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -258,6 +310,8 @@ def main() -> int:
             }
             for suffix in ("", "+load")
         }
+    if args.only in (None, "step"):
+        result["flight_step_us"] = bench_step()
     if args.only in (None, "scanmatch"):
         import bench_scanmatch  # tools/bench_scanmatch.py, beside this file
 
@@ -284,6 +338,14 @@ def main() -> int:
                 f"  ratio mkflight/pyserial-asyncio ({case}): "
                 f"median {r['median']:.2f}, p99 {r['p99']:.2f}"
             )
+    if "flight_step_us" in result:
+        f = result["flight_step_us"]
+        print(
+            "Flight step CPU (a simulated hover): imu_step median "
+            f"{f['imu_step_median_us']:.0f} us, p99 {f['imu_step_p99_us']:.0f} us; "
+            f"laser_step median {f['laser_step_median_us']:.0f} us, "
+            f"p99 {f['laser_step_p99_us']:.0f} us"
+        )
     if "scanmatch" in result:
         import bench_scanmatch
 
