@@ -37,7 +37,6 @@ from mkflight.logs.table4 import Table4Writer
 from mkflight.mk.messages import ANALOG_GAS, ANALOG_RECEIVER_LEVEL, DebugOut
 from mkflight.mk.units import MkCalibration, analog_from_si, imu_from_debug
 from mkflight.msgs import Pose2D
-from mkflight.safety.failsafe import FailsafeAction
 from mkflight.sim.vehicle import (
     Sticks,
     VehicleParams,
@@ -244,4 +243,4 @@ def run_hover(
     return result
 
 
-__all__ = ["FailsafeAction", "HoverResult", "run_hover"]
+__all__ = ["HoverResult", "run_hover"]
