@@ -12,6 +12,20 @@ and timestamps in, values out, no I/O and no clock reads. Two entry points, one 
   its limits: a step whose inputs are not finite sends the last safe command, SPEC §5),
   the failsafe action with its causes and transitions, the phase and the TABLE IV row.
 
+Fail-safe rules enforced here (SPEC §5, and a review of the first simulated flights):
+
+* a step is "non-finite" when the estimate or the IMU sample holds NaN/inf, when the
+  estimator rejected the sample (its estimate is stale), or when the controller cannot
+  produce a command: the last safe command is sent, and after
+  ``safety.nonfinite_land_steps`` such steps the failsafe lands;
+* a landing that cannot be flown on the estimate (the controller still fails, or neither
+  pose nor height is valid) is a blind, level descent at 85 % of the hover gas for at most
+  5 s, then control goes back to the pilot (Config = 0);
+* without a valid pose the controllers fly LEVEL (no position loop on dead reckoning);
+  without a valid hat height the laser counts as stale (the height loop would fly blind);
+* take-off needs a valid pose and height; the laser's age counts from when the pose
+  ARRIVED (SPEC §5: "no pose for 300 ms"), not from when the scan was taken.
+
 The shell (daemon, simulator, replay) owns ports, time and files; it only moves values.
 """
 
@@ -21,7 +35,7 @@ import math
 from dataclasses import dataclass, field
 
 from mkflight.config import Config
-from mkflight.control.controller import Controller
+from mkflight.control.controller import Controller, ControlMode
 from mkflight.control.phases import (
     Phase,
     PhaseEvent,
@@ -43,6 +57,10 @@ from mkflight.safety.failsafe import (
 )
 
 NS_PER_S = 1_000_000_000
+#: Blind descent (no trustworthy estimate or controller while landing): level, no yaw,
+#: this fraction of the hover feed-forward gas, for at most BLIND_DESCENT_S, then the pilot.
+BLIND_DESCENT_GAS_FRACTION = 0.85
+BLIND_DESCENT_S = 5.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,10 +111,23 @@ class FlightCore:
         self.phase_state = PhaseState()
         self.last_command = Command(0, 0, 0, 0, 0, take_control=False)
         self.counters = _Counters()
-        self._last_pose_ns: int | None = None
+        self._last_pose_arrival_ns: int | None = None
+        self._now_ns = 0
         self._degenerate = False
+        self._invalid_run = 0
+        self._blind_since_ns: int | None = None
         self._index3 = 0
         self._index4 = 0
+
+    def _blind_descent(self, t_ns: int, take_control: bool) -> Command:
+        """Level, no yaw, a little under hover gas; the pilot's after BLIND_DESCENT_S."""
+        self.counters.invalid_steps += 1
+        if self._blind_since_ns is None:
+            self._blind_since_ns = t_ns
+            self.counters.failsafe_events.append(f"{t_ns / NS_PER_S:.2f}s blind descent")
+        if (t_ns - self._blind_since_ns) / NS_PER_S >= BLIND_DESCENT_S:
+            return Command(t_ns, 0, 0, 0, 0, take_control=False)  # the pilot's sticks rule
+        return Command(t_ns, 0, 0, 0, _blind_gas(self.cfg), take_control=take_control)
 
     @property
     def phase(self) -> Phase:
@@ -112,13 +143,17 @@ class FlightCore:
         """
         self.counters.laser_steps += 1
         self._degenerate = degenerate
+        used = False
         if pose is not None and not degenerate:
+            before = self.estimator.counters.pose_rejected
             self.estimator.on_pose(pose)
-            self._last_pose_ns = pose.t_ns
+            used = self.estimator.counters.pose_rejected == before
+            if used:
+                self._last_pose_arrival_ns = self._now_ns
         self.estimator.on_height(t_ns, height_m)
         ls = self.estimator.laser_step
-        if ls is None:
-            return None
+        if ls is None or not used:
+            return None  # no new pose: no new TABLE III row
         self._index3 += 1
         return Table3Row(
             ls.w_vel_x_mps,
@@ -146,16 +181,19 @@ class FlightCore:
         """One DebugOut: estimate, failsafe, phase, command (see the module docstring)."""
         self.counters.imu_steps += 1
         t_ns = imu.t_ns
+        self._now_ns = max(self._now_ns, t_ns)
         est = self.estimator.on_imu(imu)
+        fresh = est.t_ns == t_ns  # the estimator took this sample (else: stale estimate)
         flying = self.phase_state.phase in (Phase.TAKEOFF, Phase.HOLD, Phase.LAND)
-        if self._last_pose_ns is None:
-            laser_age_s = math.inf
+        if self._last_pose_arrival_ns is None or (flying and not est.height_valid):
+            laser_age_s = math.inf  # no pose yet, or no hat height: the laser is stale
         else:
-            laser_age_s = (t_ns - self._last_pose_ns) / NS_PER_S
+            laser_age_s = (t_ns - self._last_pose_arrival_ns) / NS_PER_S
+        finite = fresh and _finite_estimate(est) and _finite_imu(imu) and self._invalid_run == 0
         fs = self.failsafe.update(
             FailsafeInputs(
                 t_ns=t_ns,
-                values_finite=_finite_estimate(est) and _finite_imu(imu),
+                values_finite=finite,
                 # Before take-off the laser's age is not a flight risk (it blocks take-off
                 # through the pre-flight checks instead).
                 laser_age_s=laser_age_s if flying else 0.0,
@@ -169,6 +207,13 @@ class FlightCore:
                 pilot_override=pilot_override,
             )
         )
+        if not (est.pose_valid and est.height_valid):
+            requests = PhaseRequests(
+                takeoff=False,  # never take off without a valid pose and height
+                land=requests.land,
+                release=requests.release,
+                handshake_ok=requests.handshake_ok,
+            )
         out_phase = phase_step(
             self.phase_params,
             self.phase_state,
@@ -182,20 +227,39 @@ class FlightCore:
         command = Command(t_ns, 0, 0, 0, 0, take_control=out_phase.take_control)
         used_last = False
         if out_phase.run_controllers and out_phase.setpoint is not None:
+            mode = out_phase.mode if est.pose_valid else ControlMode.LEVEL
             dt_s = _dt_s(t_ns, self.controller.last_valid_t_ns)
-            control = self.controller.update(
-                est,
-                out_phase.setpoint,
-                (imu.pitch_rad, imu.roll_rad),
-                imu.battery_v,
-                dt_s,
-                mode=out_phase.mode,
-                take_control=out_phase.take_control,
+            control = None
+            if fresh:
+                control = self.controller.update(
+                    est,
+                    out_phase.setpoint,
+                    (imu.pitch_rad, imu.roll_rad),
+                    imu.battery_v,
+                    dt_s,
+                    mode=mode,
+                    take_control=out_phase.take_control,
+                )
+            landing_blind = fs.action >= FailsafeAction.LAND and not (
+                est.pose_valid or est.height_valid
             )
-            if control.valid and control.command is not None and not fs.use_last_command:
+            ok = (
+                control is not None
+                and control.valid
+                and control.command is not None
+                and not fs.use_last_command
+            )
+            if ok and not landing_blind and control is not None and control.command is not None:
                 command = control.command
+                self._invalid_run = 0
+                self._blind_since_ns = None
+            elif fs.action >= FailsafeAction.LAND and (
+                landing_blind or self._invalid_run >= self.cfg.safety.nonfinite_land_steps
+            ):
+                command = self._blind_descent(t_ns, out_phase.take_control)
             else:
                 self.counters.invalid_steps += 1
+                self._invalid_run += 1
                 used_last = True
                 last = self.last_command
                 command = Command(
@@ -212,7 +276,7 @@ class FlightCore:
             command = Command(t_ns, 0, 0, 0, 0, take_control=False)
         self.last_command = command
         self.counters.failsafe_events += [
-            f"{e.t_ns / NS_PER_S:.2f}s {e.action.name} {e.cause}" for e in fs.events
+            f"{e.t_ns / NS_PER_S:.2f}s {e.action.name} {_cause(e.cause)}" for e in fs.events
         ]
         s = sticks or PilotSticks()
         self._index4 += 1
@@ -245,6 +309,15 @@ class FlightCore:
         )
 
 
+def _cause(cause: object) -> str:
+    return str(getattr(cause, "value", cause))
+
+
+def _blind_gas(cfg: Config) -> int:
+    gas = round(BLIND_DESCENT_GAS_FRACTION * cfg.control.hover_gas)
+    return max(0, min(cfg.control.gas_max, gas))
+
+
 def _dt_s(t_ns: int, last_ns: int | None) -> float:
     return math.nan if last_ns is None else (t_ns - last_ns) / NS_PER_S
 
@@ -252,9 +325,31 @@ def _dt_s(t_ns: int, last_ns: int | None) -> float:
 def _finite_estimate(est: Estimate) -> bool:
     return all(
         math.isfinite(v)
-        for v in (est.x_m, est.y_m, est.yaw_rad, est.height_m, est.vx_mps, est.vy_mps)
+        for v in (
+            est.x_m,
+            est.y_m,
+            est.yaw_rad,
+            est.height_m,
+            est.vx_mps,
+            est.vy_mps,
+            est.vz_up_mps,
+        )
     )
 
 
 def _finite_imu(imu: ImuSample) -> bool:
-    return all(math.isfinite(v) for v in (imu.pitch_rad, imu.roll_rad, imu.yaw_rad, imu.battery_v))
+    return (
+        all(
+            math.isfinite(v)
+            for v in (
+                imu.pitch_rad,
+                imu.roll_rad,
+                imu.yaw_rad,
+                imu.acc_x_mps2,
+                imu.acc_y_mps2,
+                imu.acc_z_mps2,
+                imu.battery_v,
+            )
+        )
+        and imu.battery_v > 0
+    )

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -36,7 +37,7 @@ from mkflight.logs.table3 import Table3Writer
 from mkflight.logs.table4 import Table4Writer
 from mkflight.mk.messages import ANALOG_GAS, ANALOG_RECEIVER_LEVEL, DebugOut
 from mkflight.mk.units import MkCalibration, analog_from_si, imu_from_debug
-from mkflight.msgs import Pose2D
+from mkflight.msgs import ImuSample, Pose2D
 from mkflight.sim.vehicle import (
     Sticks,
     VehicleParams,
@@ -76,6 +77,9 @@ class HoverResult:
     landed: bool
     failsafes: list[str] = field(default_factory=list)
     cpu_us_per_step: float = 0.0
+    max_height_m: float = 0.0
+    final_height_m: float = 0.0
+    released: bool = False
 
     def as_dict(self) -> dict[str, object]:
         """The ``--json`` object."""
@@ -93,7 +97,32 @@ class HoverResult:
             "landed": self.landed,
             "failsafes": self.failsafes,
             "cpu_us_per_step": round(self.cpu_us_per_step, 1),
+            "max_height_m": round(self.max_height_m, 3),
         }
+
+
+@dataclass(frozen=True, slots=True)
+class HoverFaults:
+    """Faults injected from ``from_s`` on (for the failsafe tests and for users' what-ifs)."""
+
+    from_s: float = math.inf
+    imu: Callable[[ImuSample], ImuSample] | None = None
+    drop_pose: bool = False
+    drop_height: bool = False
+
+
+def _advance(
+    vehicle: VehicleState,
+    sticks: Sticks,
+    t_ns: int,
+    params: VehicleParams,
+    rng: np.random.Generator,
+) -> VehicleState:
+    """Step the vehicle to ``t_ns`` (its float time may be a hair ahead already: skip)."""
+    dt_s = t_ns / NS_PER_S - vehicle.t_s
+    if dt_s <= 1e-9:
+        return vehicle
+    return step(vehicle, sticks, dt_s, params, rng)
 
 
 def _stats(errors: list[float]) -> tuple[float, float]:
@@ -104,7 +133,13 @@ def _stats(errors: list[float]) -> tuple[float, float]:
 
 
 def run_hover(
-    cfg: Config, *, duration_s: float, seed: int, log_dir: Path, height_m: float | None = None
+    cfg: Config,
+    *,
+    duration_s: float,
+    seed: int,
+    log_dir: Path,
+    height_m: float | None = None,
+    faults: HoverFaults | None = None,
 ) -> HoverResult:
     """Fly a simulated hover of ``duration_s`` (take-off, hold, land) and measure it."""
     wall0, cpu0 = time.perf_counter(), time.process_time()
@@ -113,6 +148,10 @@ def run_hover(
     vehicle: VehicleState = initial_state(params, rng, used_ah=cfg.sim.vehicle.battery_used_ah)
     cal = MkCalibration.from_config(cfg.mk)
     core = FlightCore(cfg, height_m=height_m)
+    if faults is None:
+        faults = HoverFaults()
+    fault_from_ns = int(faults.from_s * NS_PER_S) if math.isfinite(faults.from_s) else 2**62
+    max_height_m = 0.0
     stick_gas = cfg.sim.fc.stick_gas
 
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -138,8 +177,7 @@ def run_hover(
             t_ns += IMU_PERIOD_NS
             # Scans taken up to now: measured at their own time (the vehicle's pose then).
             while next_scan_ns <= t_ns:
-                if next_scan_ns * 1e-9 > vehicle.t_s:
-                    vehicle = step(vehicle, sticks, next_scan_ns * 1e-9 - vehicle.t_s, params, rng)
+                vehicle = _advance(vehicle, sticks, next_scan_ns, params, rng)
                 pose = Pose2D(
                     next_scan_ns,
                     float(vehicle.pos_w_m[0] + rng.normal(0, POSE_NOISE_M)),
@@ -149,7 +187,7 @@ def run_hover(
                 height = float(vehicle.height_m + rng.normal(0, HEIGHT_NOISE_M))
                 pending.append((next_scan_ns + LASER_DELAY_NS, pose, height))
                 next_scan_ns += SCAN_PERIOD_NS
-            vehicle = step(vehicle, sticks, t_ns * 1e-9 - vehicle.t_s, params, rng)
+            vehicle = _advance(vehicle, sticks, t_ns, params, rng)
             truth.write(
                 f"{t_ns / NS_PER_S:.4f} {vehicle.pos_w_m[0]:.5f} {vehicle.pos_w_m[1]:.5f} "
                 f"{vehicle.height_m:.5f}\n"
@@ -157,7 +195,12 @@ def run_hover(
             # The laser poses whose delay has passed arrive now (TABLE III step).
             while pending and pending[0][0] <= t_ns:
                 _, pose, height = pending.popleft()
-                row3 = core.laser_step(pose, height, t_ns=pose.t_ns)
+                faulty = pose.t_ns >= fault_from_ns
+                row3 = core.laser_step(
+                    None if faulty and faults.drop_pose else pose,
+                    None if faulty and faults.drop_height else height,
+                    t_ns=pose.t_ns,
+                )
                 if row3 is not None:
                     t3.write_row(row3)
             # The FC's DebugOut: measured, in MK counts, back to SI (SPEC §1 both ways).
@@ -176,6 +219,9 @@ def run_hover(
             analog[ANALOG_GAS] = 4 * int(sticks.gas_counts)
             analog[ANALOG_RECEIVER_LEVEL] = 200
             imu = imu_from_debug(DebugOut.from_values(analog), t_ns, cal)
+            if faults.imu is not None and t_ns >= fault_from_ns:
+                imu = faults.imu(imu)
+            max_height_m = max(max_height_m, vehicle.height_m)
             out = core.imu_step(
                 imu,
                 PhaseRequests(
@@ -188,7 +234,8 @@ def run_hover(
             command = out.command
             t4.write_row(out.row)
             for e in out.failsafe_events:
-                events.write(e.t_ns, "failsafe", action=e.action.name, cause=str(e.cause))
+                cause = getattr(e.cause, "value", "")
+                events.write(e.t_ns, "failsafe", action=e.action.name, cause=cause)
             for pe in out.phase_events:
                 events.write(pe.t_ns, "phase", to=pe.to_phase.name, reason=pe.reason)
             if out.phase is Phase.HOLD and out.estimate.pose_valid:
@@ -238,6 +285,9 @@ def run_hover(
         landed=core.phase in (Phase.LANDED, Phase.RELEASED),
         failsafes=core.counters.failsafe_events,
         cpu_us_per_step=cpu_us,
+        max_height_m=max_height_m,
+        final_height_m=vehicle.height_m,
+        released=not core.last_command.take_control,
     )
     write_flight_json(log_dir, with_summary(info, result.as_dict()))
     return result
