@@ -38,15 +38,8 @@ from mkflight.logs.table4 import Table4Writer
 from mkflight.mk.messages import ANALOG_GAS, ANALOG_RECEIVER_LEVEL, DebugOut
 from mkflight.mk.units import MkCalibration, analog_from_si, imu_from_debug
 from mkflight.msgs import ImuSample, Pose2D
-from mkflight.sim.vehicle import (
-    Sticks,
-    VehicleParams,
-    VehicleState,
-    battery_reading_v,
-    imu_measured_si,
-    initial_state,
-    step,
-)
+from mkflight.sim.vehicle import Sticks, VehicleParams, VehicleState, initial_state, step
+from mkflight.sim.vehicle_sensors import battery_reading_v, imu_measured_si
 
 NS_PER_S = 1_000_000_000
 IMU_PERIOD_NS = 52 * 1_024_000  # 'd' 5: 50 FC ticks + the 2-tick overshoot (mk-serial §7.2)

@@ -19,7 +19,7 @@ Model (world frame W: x forward, y right, z down; body B FRD; SPEC §1):
   terminal voltage V, through a motor lag ``thrust_tau_s``; at ``hover_gas_counts`` and
   ``hover_voltage_v`` it equals the weight (``control.hover_gas``/``hover_voltage_v``).
 * **Battery** (seed §L, §M): open-circuit voltage from a LiPo curve of the state of charge
-  (:data:`LIPO_OCV_V`, per cell) minus ``I R``; ``I`` = avionics current + the motors'
+  (:mod:`mkflight.sim.battery`, per cell) minus ``I R``; ``I`` = avionics current + the motors'
   current, which scales as ``(T / W)^1.5`` (momentum theory: power ∝ T^1.5) at the seed's
   6.8 A hover current, divided by ``V / V_hover`` (same power, other voltage).
 * **Translation** (SPEC §8): ``a_W = R(ψ) R_y(θ) R_x(φ) (0, 0, -T/m) + (0, 0, g) - drag``,
@@ -29,34 +29,21 @@ Model (world frame W: x forward, y right, z down; body B FRD; SPEC §1):
 * **Ground** at z = 0 (height 0): the vehicle cannot go below it; on it with net force
   down, it sits still and level (velocity, rates and acceleration zero).
 
-:func:`imu_truth_si` is the noiseless DebugOut content in SI (the specific force
-``R^T (a - g)``); :func:`imu_measured_si` and :func:`battery_reading_v` add what real
-flight adds (vibration, trim, biases, noise).
+The sensors (what the FC and the laser would measure of this state) live in
+:mod:`mkflight.sim.vehicle_sensors`.
 """
 
 from __future__ import annotations
 
-import bisect
 import math
 from dataclasses import dataclass, field, replace
-from typing import NamedTuple
 
 import numpy as np
 
 from mkflight.config import Config
 from mkflight.frames import wrap_pi
+from mkflight.sim.battery import current_a, open_circuit_v
 
-#: Per-cell LiPo open-circuit voltage vs state of charge (a generic 1C discharge curve;
-#: the seed's Fig. 26 shows each pack differs). (state of charge, volts per cell).
-LIPO_OCV_V: tuple[tuple[float, float], ...] = tuple(
-    zip(
-        (0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0),
-        (3.30, 3.55, 3.68, 3.74, 3.77, 3.80, 3.84, 3.87, 3.92, 3.98, 4.06, 4.20),
-        strict=True,
-    )
-)
-_SOC = tuple(p[0] for p in LIPO_OCV_V)
-_OCV = tuple(p[1] for p in LIPO_OCV_V)
 MAX_SUBSTEP_S = 0.005  # integration step: well below every time constant
 
 
@@ -179,33 +166,6 @@ class VehicleState:
     def height_m(self) -> float:
         """Height above the floor, positive up."""
         return -self.pos_w_m[2]
-
-
-class ImuSi(NamedTuple):
-    """DebugOut content in SI (SPEC §1): angles and body specific force (FRD)."""
-
-    pitch_rad: float
-    roll_rad: float
-    yaw_rad: float
-    acc_x_mps2: float
-    acc_y_mps2: float
-    acc_z_mps2: float
-
-
-def open_circuit_v(used_ah: float, params: VehicleParams) -> float:
-    """Pack open-circuit voltage after ``used_ah`` (seed §M; :data:`LIPO_OCV_V`)."""
-    soc = min(max(1.0 - used_ah / params.battery_capacity_ah, 0.0), 1.0)
-    i = min(max(bisect.bisect_right(_SOC, soc) - 1, 0), len(_SOC) - 2)
-    frac = (soc - _SOC[i]) / (_SOC[i + 1] - _SOC[i])
-    return params.battery_cells * (_OCV[i] + frac * (_OCV[i + 1] - _OCV[i]))
-
-
-def current_a(thrust_n: float, battery_v: float, params: VehicleParams) -> float:
-    """Pack current: avionics + motors, ``(T/W)^1.5`` at constant power (seed §L)."""
-    ratio = max(thrust_n, 0.0) / (params.mass_kg * params.g_mps2)
-    volts = max(battery_v, 0.1 * params.hover_voltage_v)
-    motors = params.hover_current_a * ratio * math.sqrt(ratio) * params.hover_voltage_v / volts
-    return params.avionics_current_a + motors
 
 
 def thrust_n(gas_counts: float, battery_v: float, params: VehicleParams) -> float:
@@ -422,44 +382,3 @@ def _integrate(
         wind_w_mps=(wx, wy, wz),
         on_ground=on_ground,
     )
-
-
-def imu_truth_si(state: VehicleState, params: VehicleParams) -> ImuSi:
-    """True attitude and body specific force ``f = R^T (a - (0, 0, g))`` (SPEC §1, §8).
-
-    At rest this is ``(g sin θ, -g sin φ cos θ, -g cos φ cos θ)``.
-    """
-    rot = body_to_world(state.pitch_rad, state.roll_rad, state.yaw_rad)
-    f = rot.T @ (np.array(state.acc_w_mps2) - np.array([0.0, 0.0, params.g_mps2]))
-    return ImuSi(
-        state.pitch_rad, state.roll_rad, state.yaw_rad, float(f[0]), float(f[1]), float(f[2])
-    )
-
-
-def imu_measured_si(state: VehicleState, params: VehicleParams, rng: np.random.Generator) -> ImuSi:
-    """What the FC reports: truth minus trim, plus biases, vibration and angle noise.
-
-    The FC's horizon is off by the trim (it flies ``command + trim``, reports ``true -
-    trim``); the motor vibration left in its averaged accelerations scales with thrust
-    (``vibration_std_mps2`` at hover, none with the motors off).
-    """
-    truth = imu_truth_si(state, params)
-    e = state.errors
-    vib = params.vibration_std_mps2 * state.thrust_n / (params.mass_kg * params.g_mps2)
-    acc_noise = rng.normal(0.0, 1.0, 3) * vib
-    ang_noise = rng.normal(0.0, params.angle_noise_std_rad, 3)
-    return ImuSi(
-        truth.pitch_rad - e.pitch_trim_rad + float(ang_noise[0]),
-        truth.roll_rad - e.roll_trim_rad + float(ang_noise[1]),
-        wrap_pi(truth.yaw_rad + float(ang_noise[2])),
-        truth.acc_x_mps2 + e.acc_bias_mps2[0] + float(acc_noise[0]),
-        truth.acc_y_mps2 + e.acc_bias_mps2[1] + float(acc_noise[1]),
-        truth.acc_z_mps2 + e.acc_bias_mps2[2] + float(acc_noise[2]),
-    )
-
-
-def battery_reading_v(
-    state: VehicleState, params: VehicleParams, rng: np.random.Generator
-) -> float:
-    """The FC's voltage reading: terminal voltage plus noise (quantised later to 0.1 V)."""
-    return state.battery_v + float(rng.normal(0.0, params.battery_noise_std_v))

@@ -9,21 +9,19 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mkflight.config import Config
+from mkflight.sim.battery import open_circuit_v
 from mkflight.sim.vehicle import (
     FlightErrors,
     Sticks,
     VehicleParams,
     VehicleState,
-    battery_reading_v,
     body_to_world,
     hover_gas_counts,
-    imu_measured_si,
-    imu_truth_si,
     initial_state,
-    open_circuit_v,
     step,
     thrust_n,
 )
+from mkflight.sim.vehicle_sensors import battery_reading_v, imu_measured_si, imu_truth_si
 
 CALM = VehicleParams(gusts=False)
 DT = 0.05

@@ -1,0 +1,42 @@
+"""The simulated LiPo pack (seed §L, §M): open-circuit voltage by charge, current by thrust.
+
+Each pack discharges differently (the seed's Fig. 26); this is a generic 1C curve. The
+terminal voltage the FC reads is ``open_circuit_v - I R`` (see :mod:`mkflight.sim.vehicle`).
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mkflight.sim.vehicle import VehicleParams
+
+#: Per-cell LiPo open-circuit voltage vs state of charge (a generic 1C discharge curve;
+#: the seed's Fig. 26 shows each pack differs). (state of charge, volts per cell).
+LIPO_OCV_V: tuple[tuple[float, float], ...] = tuple(
+    zip(
+        (0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0),
+        (3.30, 3.55, 3.68, 3.74, 3.77, 3.80, 3.84, 3.87, 3.92, 3.98, 4.06, 4.20),
+        strict=True,
+    )
+)
+_SOC = tuple(p[0] for p in LIPO_OCV_V)
+_OCV = tuple(p[1] for p in LIPO_OCV_V)
+
+
+def open_circuit_v(used_ah: float, params: VehicleParams) -> float:
+    """Pack open-circuit voltage after ``used_ah`` (seed §M; :data:`LIPO_OCV_V`)."""
+    soc = min(max(1.0 - used_ah / params.battery_capacity_ah, 0.0), 1.0)
+    i = min(max(bisect.bisect_right(_SOC, soc) - 1, 0), len(_SOC) - 2)
+    frac = (soc - _SOC[i]) / (_SOC[i + 1] - _SOC[i])
+    return params.battery_cells * (_OCV[i] + frac * (_OCV[i + 1] - _OCV[i]))
+
+
+def current_a(thrust_n: float, battery_v: float, params: VehicleParams) -> float:
+    """Pack current: avionics + motors, ``(T/W)^1.5`` at constant power (seed §L)."""
+    ratio = max(thrust_n, 0.0) / (params.mass_kg * params.g_mps2)
+    volts = max(battery_v, 0.1 * params.hover_voltage_v)
+    motors = params.hover_current_a * ratio * math.sqrt(ratio) * params.hover_voltage_v / volts
+    return params.avionics_current_a + motors
