@@ -226,6 +226,17 @@ def run_hover(
             )
             command = out.command
             t4.write_row(out.row)
+            # What the two tables do not hold (SPEC §6): height, gas, battery, phase, action.
+            events.write(
+                t_ns,
+                "step",
+                height_m=round(out.estimate.height_m, 4),
+                vz_up_mps=round(out.estimate.vz_up_mps, 4),
+                gas_counts=command.gas_counts,
+                battery_v=round(imu.battery_v, 2),
+                phase=out.phase.name,
+                action=out.action.name,
+            )
             for e in out.failsafe_events:
                 cause = getattr(e.cause, "value", "")
                 events.write(e.t_ns, "failsafe", action=e.action.name, cause=cause)
