@@ -7,7 +7,9 @@ simulator and replay can swap the monotonic clock for a manual one.
 from __future__ import annotations
 
 import time
-from typing import Protocol
+from typing import Final, Protocol
+
+NS_PER_S: Final = 1_000_000_000  # every t_ns in mkflight is integer nanoseconds
 
 
 class Clock(Protocol):

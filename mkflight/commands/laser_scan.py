@@ -21,6 +21,7 @@ from collections.abc import AsyncIterator
 
 import numpy as np
 
+from mkflight.clock import NS_PER_S
 from mkflight.commands.interrupt import next_or_stop, stop_on_signals
 from mkflight.config import Config, load_config
 from mkflight.io.serial import open_serial
@@ -29,7 +30,6 @@ from mkflight.urg.driver import UrgDriver, settings_from_config
 from mkflight.urg.hat import HatSettings, hat_height
 from mkflight.urg.units import SensorParams, step_body_angle_rad
 
-NS_PER_S = 1_000_000_000
 URG_BAUDRATE = 115200  # USB CDC-ACM ignores it (scip2.md §1)
 #: The simulated room of ``--sim``: 6 x 5 m with a box and a cabinet (x_min y_min x_max y_max).
 DEMO_OBSTACLES = ((1.0, 0.8, 1.6, 1.4), (-2.4, -2.2, -1.6, -1.9))

@@ -28,9 +28,9 @@ import bisect
 import math
 from dataclasses import dataclass, replace
 
+from mkflight.clock import NS_PER_S
 from mkflight.config import EstimationConfig
 from mkflight.estimation.filter import (
-    NS_PER_S,
     LaserVelocity,
     complementary_step,
     laser_velocity,

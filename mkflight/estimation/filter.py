@@ -15,10 +15,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from mkflight.clock import NS_PER_S
 from mkflight.frames import world_to_body, wrap_pi
 from mkflight.msgs import Pose2D
-
-NS_PER_S = 1_000_000_000
 
 
 def complementary_step(

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from mkflight.clock import NS_PER_S
 from mkflight.config import Config
 from mkflight.control.controller import Controller, ControlMode
 from mkflight.control.phases import (
@@ -56,7 +57,6 @@ from mkflight.safety.failsafe import (
     TransitionEvent,
 )
 
-NS_PER_S = 1_000_000_000
 #: Blind descent (no trustworthy estimate or controller while landing): level, no yaw,
 #: this fraction of the hover feed-forward gas, for at most BLIND_DESCENT_S, then the pilot.
 BLIND_DESCENT_GAS_FRACTION = 0.85

@@ -13,14 +13,13 @@ from collections.abc import Callable
 
 import structlog
 
+from mkflight.clock import NS_PER_S
 from mkflight.errors import LinkError
 from mkflight.io.stream import ByteStream, Opener
 
 __all__ = ["open_with_backoff"]
 
 log = structlog.get_logger("mkflight.io")
-
-NS_PER_S = 1_000_000_000
 
 
 def _loop_now_ns() -> int:

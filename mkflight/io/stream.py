@@ -53,6 +53,12 @@ Tap = Callable[[str, int, bytes], None]
 Opener = Callable[[], Awaitable["ByteStream"]]
 
 
+def resolve_waiter(waiter: asyncio.Future[None]) -> None:
+    """Wake a reader's bare future (a timer's callback: the wait is over)."""
+    if not waiter.done():
+        waiter.set_result(None)
+
+
 class ChunkQueue:
     """Received chunks and the one reader waiting for them; ends with an error."""
 

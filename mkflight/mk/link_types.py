@@ -5,13 +5,12 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 
+from mkflight.clock import NS_PER_S
 from mkflight.config import Config
 from mkflight.io.stream import Opener, Tap
 from mkflight.mk.codec import ParserStats
 
 __all__ = ["NS_PER_S", "LinkSettings", "LinkStats", "Opener", "Tap"]
-
-NS_PER_S = 1_000_000_000
 
 
 @dataclass(frozen=True, slots=True)

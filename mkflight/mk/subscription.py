@@ -26,6 +26,7 @@ import structlog
 
 from mkflight.clock import Clock
 from mkflight.errors import LinkError
+from mkflight.io.stream import resolve_waiter
 from mkflight.mk.link_types import NS_PER_S, LinkSettings, LinkStats
 from mkflight.mk.messages import DebugOut, debug_request, version_request
 from mkflight.mk.sender import CommandSender
@@ -38,11 +39,6 @@ log = structlog.get_logger("mkflight.mk")
 
 FC_HOLD_S = 5.5  # the FC drops extern control ~5.2 s after the last hold frame (§7.4)
 _OFF = -(10**18)
-
-
-def _resolve(waiter: asyncio.Future[None]) -> None:
-    if not waiter.done():
-        waiter.set_result(None)
 
 
 class DebugSubscription:
@@ -177,7 +173,7 @@ class DebugSubscription:
         # sample's path); a timer resolves it when the wait is over.
         loop = asyncio.get_running_loop()
         waiter = self._sample_waiter = loop.create_future()
-        timer = loop.call_later(wait_s, _resolve, waiter)
+        timer = loop.call_later(wait_s, resolve_waiter, waiter)
         try:
             await waiter
         finally:

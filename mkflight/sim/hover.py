@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mkflight.clock import NS_PER_S
 from mkflight.config import Config
 from mkflight.control.phases import Phase, PhaseRequests
 from mkflight.flight.step import FlightCore, PilotSticks
@@ -41,7 +42,6 @@ from mkflight.msgs import ImuSample, Pose2D
 from mkflight.sim.vehicle import Sticks, VehicleParams, VehicleState, initial_state, step
 from mkflight.sim.vehicle_sensors import battery_reading_v, imu_measured_si
 
-NS_PER_S = 1_000_000_000
 IMU_PERIOD_NS = 52 * 1_024_000  # 'd' 5: 50 FC ticks + the 2-tick overshoot (mk-serial §7.2)
 SCAN_PERIOD_NS = 100_000_000  # 600 rpm
 LASER_DELAY_NS = 100_000_000  # the scan reaches the pose ~100 ms after it was taken (§G)

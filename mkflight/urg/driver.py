@@ -34,7 +34,7 @@ import structlog
 from mkflight.clock import Clock, MonotonicClock
 from mkflight.errors import LinkError, ProtocolError
 from mkflight.io.reopen import open_with_backoff
-from mkflight.io.stream import ByteStream, Opener, Tap
+from mkflight.io.stream import ByteStream, Opener, Tap, resolve_waiter
 from mkflight.msgs import Scan
 from mkflight.urg.codec import md_command, scip2_command, simple_command, tm_command
 from mkflight.urg.driver_types import UrgInfo, UrgSettings, UrgStats, settings_from_config
@@ -45,11 +45,6 @@ from mkflight.urg.units import URG_04LX, SensorParams, parse_params
 __all__ = ["UrgDriver", "UrgInfo", "UrgSettings", "UrgStats", "settings_from_config"]
 
 log = structlog.get_logger("mkflight.urg")
-
-
-def _resolve(waiter: asyncio.Future[None]) -> None:
-    if not waiter.done():
-        waiter.set_result(None)
 
 
 class UrgDriver:
@@ -388,7 +383,7 @@ class UrgDriver:
                     raise LinkError(msg)
                 wait_s = min(wait_s, left_s)
             waiter = self._scan_waiter = loop.create_future()
-            timer = loop.call_later(max(wait_s, 0.001), _resolve, waiter)
+            timer = loop.call_later(max(wait_s, 0.001), resolve_waiter, waiter)
             try:
                 await waiter
             finally:

@@ -12,14 +12,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from mkflight.clock import NS_PER_S
 from mkflight.msgs import Scan
 from mkflight.urg.replies import ScanReply
 from mkflight.urg.timesync import SensorClock
 from mkflight.urg.units import SensorParams, TimestampUnwrapper
 
 __all__ = ["NS_PER_S", "ScanStamper"]
-
-NS_PER_S = 1_000_000_000
 
 
 class ScanStamper:
