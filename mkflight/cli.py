@@ -7,6 +7,7 @@ Errors print as one ``error:`` line on stderr, never a traceback (``--debug`` sh
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import traceback
@@ -33,6 +34,38 @@ def _count(text: str) -> int:
     value = int(text)
     if value < 0:
         msg = f"must be >= 0, got {value}"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        msg = f"expected a number, got {text!r}"
+        raise argparse.ArgumentTypeError(msg) from None
+    if not (math.isfinite(value) and value > 0):
+        msg = f"must be a finite number > 0, got {text}"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _non_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        msg = f"expected a number, got {text!r}"
+        raise argparse.ArgumentTypeError(msg) from None
+    if not (math.isfinite(value) and value >= 0):
+        msg = f"must be a finite number >= 0, got {text}"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _fraction(text: str) -> float:
+    value = _positive(text)
+    if value > 1:
+        msg = f"must be in (0, 1], got {text}"
         raise argparse.ArgumentTypeError(msg)
     return value
 
@@ -146,6 +179,65 @@ def build_parser() -> argparse.ArgumentParser:
     hover.add_argument("--log-dir", metavar="DIR", help="flight folder (default: new, dated)")
     hover.add_argument("--json", action="store_true", help="one JSON object")
     hover.set_defaults(func=_run_sim_hover)
+
+    calibrate = commands.add_parser("calibrate", help="calibrations from measurements")
+    calibrate_commands = calibrate.add_subparsers(
+        dest="calibrate_command", metavar="COMMAND", parser_class=_Parser
+    )
+    calibrate_commands.required = True
+    acc = calibrate_commands.add_parser(
+        "acc",
+        help="fit the accelerometer scale k (counts/g) to a tilt table",
+        description="Least-squares fit of counts = -k*sin(angle) (seed §D, eq 7, TABLE I/II) "
+        "to rows of 'angle_deg counts' (spaces, tabs or a comma; optional header; # "
+        "comments); prints k, the residual RMS and each row's error.",
+    )
+    acc.add_argument("file", metavar="FILE", help="the table: one 'angle_deg counts' row a line")
+    acc.add_argument(
+        "--axis",
+        choices=("nick", "roll"),
+        default="nick",
+        help="nick (pitch, TABLE I) or roll (TABLE II): the config key to write (default nick)",
+    )
+    acc.add_argument("--json", action="store_true", help="one JSON object")
+    acc.add_argument(
+        "--write-config",
+        metavar="F",
+        help="set mk.acc_<axis>_counts_per_g in the YAML file F (comments are not kept)",
+    )
+    acc.set_defaults(func=_run_calibrate_acc)
+
+    flight = commands.add_parser(
+        "flight-time",
+        help="flight time from battery capacity and current (eq 27)",
+        description="t = B / C (seed §L, eq 27): the ideal time, the time derated by "
+        "--usable, and the thrust each of the 4 motors gives to hover --mass-g.",
+    )
+    flight.add_argument(
+        "--capacity-ah", type=_positive, required=True, metavar="C", help="battery capacity, Ah"
+    )
+    flight.add_argument(
+        "--current-a", type=_positive, required=True, metavar="I", help="motors' current, A"
+    )
+    flight.add_argument(
+        "--usable",
+        type=_fraction,
+        default=0.9,
+        metavar="F",
+        help="derating factor in (0, 1] (default 0.9, the seed's)",
+    )
+    flight.add_argument(
+        "--extra-current-a",
+        type=_non_negative,
+        default=0.0,
+        metavar="A",
+        help="other electronics' current, added to I (the seed: 0.5)",
+    )
+    flight.add_argument(
+        "--mass-g", type=_positive, metavar="M", help="take-off mass, g: thrust per motor"
+    )
+    flight.add_argument("--json", action="store_true", help="one JSON object")
+    flight.set_defaults(func=_run_flight_time)
     return parser
 
 
@@ -198,6 +290,27 @@ def _run_sim_hover(args: argparse.Namespace) -> int:
         as_json=args.json,
         config_path=args.config,
         overrides=args.overrides,
+    )
+
+
+def _run_calibrate_acc(args: argparse.Namespace) -> int:
+    from mkflight.commands.calibrate import cmd_calibrate_acc
+
+    return cmd_calibrate_acc(
+        file=args.file, axis=args.axis, as_json=args.json, write_config=args.write_config
+    )
+
+
+def _run_flight_time(args: argparse.Namespace) -> int:
+    from mkflight.commands.flight_time import cmd_flight_time
+
+    return cmd_flight_time(
+        capacity_ah=args.capacity_ah,
+        current_a=args.current_a,
+        usable=args.usable,
+        mass_g=args.mass_g,
+        extra_current_a=args.extra_current_a,
+        as_json=args.json,
     )
 
 

@@ -1,0 +1,121 @@
+"""``mkflight calibrate acc``: the accelerometer scale factor from a tilt table (seed §D)."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from mkflight.analysis.calibrate import AccFit, CalibrationInputError, fit_acc_scale, parse_rows
+from mkflight.config import config_from_dict
+from mkflight.errors import ConfigError
+
+_KEYS = {"nick": "acc_nick_counts_per_g", "roll": "acc_roll_counts_per_g"}
+_SEED_K = {"nick": "606.3 (TABLE I)", "roll": "603.44 (TABLE II)"}
+
+
+def cmd_calibrate_acc(*, file: str, axis: str, as_json: bool, write_config: str | None) -> int:
+    """Fit ``counts = -k·sin(angle)`` (seed eq 7) to FILE and print k, residual and errors.
+
+    Args:
+        file: the table of ``angle_deg counts`` rows (format: :mod:`mkflight.analysis.calibrate`).
+        axis: ``nick`` (pitch, TABLE I) or ``roll`` (TABLE II): which config key to write.
+        as_json: print one object ``{"k_counts_per_g", "residual_rms_counts", "rows"}``.
+        write_config: a YAML config file whose ``mk.acc_<axis>_counts_per_g`` is set to k
+            (created if missing). Other keys are kept, but the file is re-written by
+            ``yaml.safe_dump``: its comments and formatting are not preserved.
+
+    Raises:
+        CalibrationInputError: FILE unreadable, a malformed row (naming file and line), no
+            rows (exit 1).
+        ConfigError: the config file cannot be read, parsed, validated or written (exit 2).
+    """
+    if axis not in _KEYS:
+        msg = f"axis must be 'nick' or 'roll', got {axis!r}"
+        raise ConfigError(msg)
+    try:
+        text = Path(file).read_text(encoding="utf-8")
+    except OSError as err:
+        msg = f"{file}: cannot read calibration table: {err.strerror or err}"
+        raise CalibrationInputError(msg) from err
+    except UnicodeDecodeError as err:
+        msg = f"{file}: not UTF-8 text (byte {err.start}): {err.reason}"
+        raise CalibrationInputError(msg) from err
+    fit = fit_acc_scale(parse_rows(text, file), file)
+    if write_config is not None:
+        _write_k(write_config, _KEYS[axis], fit.k_counts_per_g)
+    if as_json:
+        print(
+            json.dumps(
+                {
+                    "k_counts_per_g": fit.k_counts_per_g,
+                    "residual_rms_counts": fit.residual_rms_counts,
+                    "rows": len(fit.rows),
+                }
+            )
+        )
+        return 0
+    _print_fit(fit, axis, file)
+    if write_config is not None:
+        print(f"wrote mk.{_KEYS[axis]} = {round(fit.k_counts_per_g, 3)} to {write_config}")
+    return 0
+
+
+def _print_fit(fit: AccFit, axis: str, file: str) -> None:
+    print(
+        f"acc {axis}: k = {fit.k_counts_per_g:.3f} counts/g  "
+        f"(seed {_SEED_K[axis]}; model counts = -k*sin(angle), eq 7)"
+    )
+    print(f"residual RMS {fit.residual_rms_counts:.2f} counts over {len(fit.rows)} rows of {file}")
+    print(f"{'line':>6} {'angle_deg':>10} {'counts':>10} {'fit':>10} {'error':>8}")
+    for row, error in zip(fit.rows, fit.errors_counts, strict=True):
+        print(
+            f"{row.line:>6} {row.angle_deg:>10.2f} {row.counts:>10.2f} "
+            f"{fit.fitted_counts(row):>10.2f} {error:>8.2f}"
+        )
+
+
+def _write_k(path: str, key: str, k_counts_per_g: float) -> None:
+    """Set ``mk.<key>`` in the YAML file ``path``, keep the other keys, validate, then write.
+
+    Comments are not preserved (``yaml.safe_load`` → ``yaml.safe_dump(sort_keys=False)``).
+    The file is replaced atomically, and only if the result is a valid configuration.
+    """
+    target = Path(path)
+    data: Any = {}
+    if target.exists():
+        try:
+            data = yaml.safe_load(target.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError) as err:
+            msg = f"{path}: cannot read config file: {err}"
+            raise ConfigError(msg) from err
+        except yaml.YAMLError as err:
+            msg = f"{path}: invalid YAML: {err}"
+            raise ConfigError(msg) from err
+        if data is None:
+            data = {}
+    if not isinstance(data, dict):
+        msg = f"{path}: the top level must be a mapping of sections"
+        raise ConfigError(msg)
+    mk = data.setdefault("mk", {})
+    if not isinstance(mk, dict):
+        msg = f"{path}: mk: must be a mapping of keys"
+        raise ConfigError(msg)
+    mk[key] = round(k_counts_per_g, 3)
+    config_from_dict(data, path)
+    text = yaml.safe_dump(data, sort_keys=False)
+    tmp: str | None = None
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+        with os.fdopen(fd, "w", encoding="utf-8") as out:
+            out.write(text)
+        os.replace(tmp, target)
+    except OSError as err:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+        msg = f"{path}: cannot write config file: {err.strerror or err}"
+        raise ConfigError(msg) from err
