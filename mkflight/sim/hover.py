@@ -227,9 +227,15 @@ def run_hover(
             command = out.command
             t4.write_row(out.row)
             # What the two tables do not hold (SPEC §6): height, gas, battery, phase, action.
+            sp_now = core.phase_state.setpoint
             events.write(
                 t_ns,
                 "step",
+                x_m=round(out.estimate.x_m, 4),
+                y_m=round(out.estimate.y_m, 4),
+                sp_x_m=None if sp_now is None else round(sp_now.x_m, 4),
+                sp_y_m=None if sp_now is None else round(sp_now.y_m, 4),
+                sp_height_m=None if sp_now is None else round(sp_now.height_m, 4),
                 height_m=round(out.estimate.height_m, 4),
                 vz_up_mps=round(out.estimate.vz_up_mps, 4),
                 gas_counts=command.gas_counts,
