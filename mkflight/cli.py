@@ -238,6 +238,48 @@ def build_parser() -> argparse.ArgumentParser:
     )
     flight.add_argument("--json", action="store_true", help="one JSON object")
     flight.set_defaults(func=_run_flight_time)
+
+    plot = commands.add_parser(
+        "plot",
+        help="draw a flight folder's figures as PNG files (needs the plot extra)",
+        description="PNG figures of one flight folder (seed §O-P, Fig 18/19): trajectory "
+        "x-y, position and height with set-points, laser vs filtered velocity, commands and "
+        "sticks, battery. Prints the paths. Needs matplotlib: pip install 'mkflight[plot]'.",
+    )
+    plot.add_argument("log_dir", metavar="LOGDIR", help="the flight folder")
+    plot.add_argument(
+        "-o", "--out-dir", metavar="DIR", help="where the PNGs go (default: LOGDIR/plots)"
+    )
+    plot.set_defaults(func=_run_plot)
+
+    analyze = commands.add_parser("analyze", help="the seed's analyses of a flight folder")
+    analyze_commands = analyze.add_subparsers(
+        dest="analyze_command", metavar="COMMAND", parser_class=_Parser
+    )
+    analyze_commands.required = True
+    precision = analyze_commands.add_parser(
+        "precision",
+        help="hover precision (mean, std, RMS, max error) beside the seed's TABLE IX",
+        description="Mean, std, RMS and max of the x, y and height error about the set-point "
+        "during HOLD (from 3 s after HOLD begins, as 'sim hover' measures), against the "
+        "flight's estimate or a 't x y z' truth file (seed §O-P, TABLE IX).",
+    )
+    precision.add_argument("log_dir", metavar="LOGDIR", help="the flight folder")
+    precision.add_argument(
+        "--truth", metavar="FILE", help="'t x y z' ground truth (z = height up), e.g. truth.txt"
+    )
+    precision.add_argument("--json", action="store_true", help="one JSON object")
+    precision.set_defaults(func=_run_analyze_precision)
+    latency = analyze_commands.add_parser(
+        "latency",
+        help="command-to-velocity lag by cross-correlation (seed §F, Fig 8)",
+        description="Normalised cross-correlation of the commanded pitch (roll) and the "
+        "body velocity along x (y) for lags 0..20 steps of 50 ms; prints the lag at the "
+        "peak and the curve (seed §F, Fig 8).",
+    )
+    latency.add_argument("log_dir", metavar="LOGDIR", help="the flight folder")
+    latency.add_argument("--json", action="store_true", help="one JSON object")
+    latency.set_defaults(func=_run_analyze_latency)
     return parser
 
 
@@ -312,6 +354,24 @@ def _run_flight_time(args: argparse.Namespace) -> int:
         extra_current_a=args.extra_current_a,
         as_json=args.json,
     )
+
+
+def _run_plot(args: argparse.Namespace) -> int:
+    from mkflight.commands.plot import cmd_plot
+
+    return cmd_plot(log_dir=args.log_dir, out_dir=args.out_dir)
+
+
+def _run_analyze_precision(args: argparse.Namespace) -> int:
+    from mkflight.commands.analyze import cmd_analyze_precision
+
+    return cmd_analyze_precision(log_dir=args.log_dir, truth=args.truth, as_json=args.json)
+
+
+def _run_analyze_latency(args: argparse.Namespace) -> int:
+    from mkflight.commands.analyze import cmd_analyze_latency
+
+    return cmd_analyze_latency(log_dir=args.log_dir, as_json=args.json)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -15,6 +15,11 @@ import structlog
 LEVELS = {"debug": logging.DEBUG, "info": logging.INFO, "warning": logging.WARNING}
 
 
+def _stderr_logger(*_args: object) -> structlog.PrintLogger:
+    """A logger on whatever ``sys.stderr`` is *now* (a test harness may swap it)."""
+    return structlog.PrintLogger(file=sys.stderr)
+
+
 def configure_events(
     level: str = "info", json_lines: bool | None = None, stream: TextIO | None = None
 ) -> None:
@@ -42,6 +47,8 @@ def configure_events(
             renderer,
         ],
         wrapper_class=structlog.make_filtering_bound_logger(LEVELS[level]),
-        logger_factory=structlog.PrintLoggerFactory(file=out),
+        logger_factory=(
+            structlog.PrintLoggerFactory(file=out) if stream is not None else _stderr_logger
+        ),
         cache_logger_on_first_use=False,
     )
