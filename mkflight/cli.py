@@ -7,14 +7,14 @@ Errors print as one ``error:`` line on stderr, never a traceback (``--debug`` sh
 from __future__ import annotations
 
 import argparse
-import math
+import importlib
 import os
 import sys
 import traceback
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import NoReturn
 
-from mkflight import __version__
+from mkflight import __version__, cli_types
 from mkflight.errors import ConfigError, MkflightError, PortNotFoundError
 
 EXIT_OK = 0
@@ -28,46 +28,6 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         print(f"error: {message} (see '{self.prog} --help')", file=sys.stderr)
         raise SystemExit(EXIT_USAGE)
-
-
-def _count(text: str) -> int:
-    value = int(text)
-    if value < 0:
-        msg = f"must be >= 0, got {value}"
-        raise argparse.ArgumentTypeError(msg)
-    return value
-
-
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        msg = f"expected a number, got {text!r}"
-        raise argparse.ArgumentTypeError(msg) from None
-    if not (math.isfinite(value) and value > 0):
-        msg = f"must be a finite number > 0, got {text}"
-        raise argparse.ArgumentTypeError(msg)
-    return value
-
-
-def _non_negative(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        msg = f"expected a number, got {text!r}"
-        raise argparse.ArgumentTypeError(msg) from None
-    if not (math.isfinite(value) and value >= 0):
-        msg = f"must be a finite number >= 0, got {text}"
-        raise argparse.ArgumentTypeError(msg)
-    return value
-
-
-def _fraction(text: str) -> float:
-    value = _positive(text)
-    if value > 1:
-        msg = f"must be in (0, 1], got {text}"
-        raise argparse.ArgumentTypeError(msg)
-    return value
 
 
 def _config_options() -> _Parser:
@@ -120,10 +80,23 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument("--port", metavar="DEV", help="serial device of the FC, e.g. /dev/ttyUSB0")
     where.add_argument("--sim", action="store_true", help="use the built-in FC emulator on a pty")
     info.add_argument(
-        "--count", type=_count, default=10, metavar="N", help="samples to print (0: until Ctrl-C)"
+        "--count",
+        type=cli_types.count,
+        default=10,
+        metavar="N",
+        help="samples to print (0: until Ctrl-C)",
     )
     info.add_argument("--json", action="store_true", help="one JSON object per sample and line")
-    info.set_defaults(func=_run_mk_info)
+    info.set_defaults(
+        func=_command(
+            "mkflight.commands.mk_info:cmd_mk_info",
+            port="port",
+            sim="sim",
+            count="count",
+            as_json="json",
+            **_CONFIG_ARGS,
+        )
+    )
 
     laser = commands.add_parser("laser", help="the Hokuyo URG laser")
     laser_commands = laser.add_subparsers(
@@ -143,10 +116,23 @@ def build_parser() -> argparse.ArgumentParser:
         "--sim", action="store_true", help="use the built-in URG emulator on a pty"
     )
     scan.add_argument(
-        "--count", type=_count, default=5, metavar="N", help="scans to print (0: until Ctrl-C)"
+        "--count",
+        type=cli_types.count,
+        default=5,
+        metavar="N",
+        help="scans to print (0: until Ctrl-C)",
     )
     scan.add_argument("--json", action="store_true", help="one JSON object per scan and line")
-    scan.set_defaults(func=_run_laser_scan)
+    scan.set_defaults(
+        func=_command(
+            "mkflight.commands.laser_scan:cmd_laser_scan",
+            port="port",
+            sim="sim",
+            count="count",
+            as_json="json",
+            **_CONFIG_ARGS,
+        )
+    )
 
     match = commands.add_parser(
         "scanmatch",
@@ -160,7 +146,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--odom", metavar="FILE", help="'t x y theta' odometry whose increments are the prior"
     )
     match.add_argument("-o", "--output", metavar="TRAJ", help="write here instead of stdout")
-    match.set_defaults(func=_run_scanmatch)
+    match.set_defaults(
+        func=_command(
+            "mkflight.commands.scanmatch:cmd_scanmatch",
+            log="log",
+            odom="odom",
+            out="output",
+            **_CONFIG_ARGS,
+        )
+    )
 
     sim = commands.add_parser("sim", help="the simulator")
     sim_commands = sim.add_subparsers(dest="sim_command", metavar="COMMAND", parser_class=_Parser)
@@ -178,7 +172,17 @@ def build_parser() -> argparse.ArgumentParser:
     hover.add_argument("--height", type=float, metavar="M", help="hover height (default 0.6)")
     hover.add_argument("--log-dir", metavar="DIR", help="flight folder (default: new, dated)")
     hover.add_argument("--json", action="store_true", help="one JSON object")
-    hover.set_defaults(func=_run_sim_hover)
+    hover.set_defaults(
+        func=_command(
+            "mkflight.commands.sim_hover:cmd_sim_hover",
+            duration_s="duration",
+            seed="seed",
+            height_m="height",
+            log_dir="log_dir",
+            as_json="json",
+            **_CONFIG_ARGS,
+        )
+    )
 
     calibrate = commands.add_parser("calibrate", help="calibrations from measurements")
     calibrate_commands = calibrate.add_subparsers(
@@ -205,7 +209,15 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="F",
         help="set mk.acc_<axis>_counts_per_g in the YAML file F (comments are not kept)",
     )
-    acc.set_defaults(func=_run_calibrate_acc)
+    acc.set_defaults(
+        func=_command(
+            "mkflight.commands.calibrate:cmd_calibrate_acc",
+            file="file",
+            axis="axis",
+            as_json="json",
+            write_config="write_config",
+        )
+    )
 
     flight = commands.add_parser(
         "flight-time",
@@ -214,30 +226,48 @@ def build_parser() -> argparse.ArgumentParser:
         "--usable, and the thrust each of the 4 motors gives to hover --mass-g.",
     )
     flight.add_argument(
-        "--capacity-ah", type=_positive, required=True, metavar="C", help="battery capacity, Ah"
+        "--capacity-ah",
+        type=cli_types.positive,
+        required=True,
+        metavar="C",
+        help="battery capacity, Ah",
     )
     flight.add_argument(
-        "--current-a", type=_positive, required=True, metavar="I", help="motors' current, A"
+        "--current-a",
+        type=cli_types.positive,
+        required=True,
+        metavar="I",
+        help="motors' current, A",
     )
     flight.add_argument(
         "--usable",
-        type=_fraction,
+        type=cli_types.fraction,
         default=0.9,
         metavar="F",
         help="derating factor in (0, 1] (default 0.9, the seed's)",
     )
     flight.add_argument(
         "--extra-current-a",
-        type=_non_negative,
+        type=cli_types.non_negative,
         default=0.0,
         metavar="A",
         help="other electronics' current, added to I (the seed: 0.5)",
     )
     flight.add_argument(
-        "--mass-g", type=_positive, metavar="M", help="take-off mass, g: thrust per motor"
+        "--mass-g", type=cli_types.positive, metavar="M", help="take-off mass, g: thrust per motor"
     )
     flight.add_argument("--json", action="store_true", help="one JSON object")
-    flight.set_defaults(func=_run_flight_time)
+    flight.set_defaults(
+        func=_command(
+            "mkflight.commands.flight_time:cmd_flight_time",
+            capacity_ah="capacity_ah",
+            current_a="current_a",
+            usable="usable",
+            mass_g="mass_g",
+            extra_current_a="extra_current_a",
+            as_json="json",
+        )
+    )
 
     plot = commands.add_parser(
         "plot",
@@ -250,7 +280,9 @@ def build_parser() -> argparse.ArgumentParser:
     plot.add_argument(
         "-o", "--out-dir", metavar="DIR", help="where the PNGs go (default: LOGDIR/plots)"
     )
-    plot.set_defaults(func=_run_plot)
+    plot.set_defaults(
+        func=_command("mkflight.commands.plot:cmd_plot", log_dir="log_dir", out_dir="out_dir")
+    )
 
     analyze = commands.add_parser("analyze", help="the seed's analyses of a flight folder")
     analyze_commands = analyze.add_subparsers(
@@ -269,7 +301,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--truth", metavar="FILE", help="'t x y z' ground truth (z = height up), e.g. truth.txt"
     )
     precision.add_argument("--json", action="store_true", help="one JSON object")
-    precision.set_defaults(func=_run_analyze_precision)
+    precision.set_defaults(
+        func=_command(
+            "mkflight.commands.analyze:cmd_analyze_precision",
+            log_dir="log_dir",
+            truth="truth",
+            as_json="json",
+        )
+    )
     latency = analyze_commands.add_parser(
         "latency",
         help="command-to-velocity lag by cross-correlation (seed §F, Fig 8)",
@@ -279,99 +318,33 @@ def build_parser() -> argparse.ArgumentParser:
     )
     latency.add_argument("log_dir", metavar="LOGDIR", help="the flight folder")
     latency.add_argument("--json", action="store_true", help="one JSON object")
-    latency.set_defaults(func=_run_analyze_latency)
+    latency.set_defaults(
+        func=_command(
+            "mkflight.commands.analyze:cmd_analyze_latency", log_dir="log_dir", as_json="json"
+        )
+    )
     return parser
 
 
-def _run_mk_info(args: argparse.Namespace) -> int:
-    from mkflight.commands.mk_info import cmd_mk_info
-
-    return cmd_mk_info(
-        port=args.port,
-        sim=args.sim,
-        count=args.count,
-        as_json=args.json,
-        config_path=args.config,
-        overrides=args.overrides,
-    )
+#: The options every config-using command passes on: cmd parameter -> argparse dest.
+_CONFIG_ARGS = {"config_path": "config", "overrides": "overrides"}
 
 
-def _run_laser_scan(args: argparse.Namespace) -> int:
-    from mkflight.commands.laser_scan import cmd_laser_scan
+def _command(target: str, **params: str) -> Callable[[argparse.Namespace], int]:
+    """A subcommand's runner: import ``module:cmd_function`` lazily, pass it its options.
 
-    return cmd_laser_scan(
-        port=args.port,
-        sim=args.sim,
-        count=args.count,
-        as_json=args.json,
-        config_path=args.config,
-        overrides=args.overrides,
-    )
+    ``params`` maps each keyword parameter of the ``cmd_*`` function to the argparse
+    destination it takes its value from. The import happens only when the command runs,
+    so ``mkflight --help`` and the light commands never load numpy, scipy or matplotlib.
+    """
+    module_name, function_name = target.split(":")
 
+    def run(args: argparse.Namespace) -> int:
+        function = getattr(importlib.import_module(module_name), function_name)
+        code = function(**{param: getattr(args, dest) for param, dest in params.items()})
+        return int(code)
 
-def _run_scanmatch(args: argparse.Namespace) -> int:
-    from mkflight.commands.scanmatch import cmd_scanmatch
-
-    return cmd_scanmatch(
-        log=args.log,
-        odom=args.odom,
-        out=args.output,
-        config_path=args.config,
-        overrides=args.overrides,
-    )
-
-
-def _run_sim_hover(args: argparse.Namespace) -> int:
-    from mkflight.commands.sim_hover import cmd_sim_hover
-
-    return cmd_sim_hover(
-        duration_s=args.duration,
-        seed=args.seed,
-        height_m=args.height,
-        log_dir=args.log_dir,
-        as_json=args.json,
-        config_path=args.config,
-        overrides=args.overrides,
-    )
-
-
-def _run_calibrate_acc(args: argparse.Namespace) -> int:
-    from mkflight.commands.calibrate import cmd_calibrate_acc
-
-    return cmd_calibrate_acc(
-        file=args.file, axis=args.axis, as_json=args.json, write_config=args.write_config
-    )
-
-
-def _run_flight_time(args: argparse.Namespace) -> int:
-    from mkflight.commands.flight_time import cmd_flight_time
-
-    return cmd_flight_time(
-        capacity_ah=args.capacity_ah,
-        current_a=args.current_a,
-        usable=args.usable,
-        mass_g=args.mass_g,
-        extra_current_a=args.extra_current_a,
-        as_json=args.json,
-    )
-
-
-def _run_plot(args: argparse.Namespace) -> int:
-    from mkflight.commands.plot import cmd_plot
-
-    return cmd_plot(log_dir=args.log_dir, out_dir=args.out_dir)
-
-
-def _run_analyze_precision(args: argparse.Namespace) -> int:
-    from mkflight.commands.analyze import cmd_analyze_precision
-
-    return cmd_analyze_precision(log_dir=args.log_dir, truth=args.truth, as_json=args.json)
-
-
-def _run_analyze_latency(args: argparse.Namespace) -> int:
-    from mkflight.commands.analyze import cmd_analyze_latency
-
-    return cmd_analyze_latency(log_dir=args.log_dir, as_json=args.json)
+    return run
 
 
 def main(argv: Sequence[str] | None = None) -> int:
