@@ -13,16 +13,14 @@ MATLAB's ``importdata(f, ' ', 1)``.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
-from typing import Self, TextIO
 
 import numpy as np
 import numpy.typing as npt
 
 from mkflight.errors import ReplayError
+from mkflight.logs._file import LineFile
 
 Value = float | int
 
@@ -82,21 +80,18 @@ def format_row(fmt: TableFormat, values: tuple[Value, ...]) -> str:
     return " ".join(fields) + "\n"
 
 
-class TableWriter:
+class TableWriter(LineFile):
     """Writes one table file in a flight folder, flushing every row.
 
     The file is created (never overwritten: ``FileExistsError`` if it exists) and the
-    header written and flushed at once. ``close`` also fsyncs; a flush per row survives a
-    killed process, not a power cut.
+    header written and flushed at once (:class:`~mkflight.logs._file.LineFile`).
     """
 
     def __init__(self, folder: str | Path, fmt: TableFormat) -> None:
+        super().__init__(Path(folder) / fmt.file_name, "ascii")
         self.fmt = fmt
-        self.path = Path(folder) / fmt.file_name
-        self._file: TextIO | None = self.path.open("x", encoding="ascii", newline="\n")
         self._last_index: int | None = None
-        self._file.write(fmt.header + "\n")
-        self._file.flush()
+        self.write_line(fmt.header + "\n")
 
     def write_values(self, values: tuple[Value, ...]) -> None:
         """Append one row (columns in table order) and flush it.
@@ -105,7 +100,7 @@ class TableWriter:
             ValueError: a malformed row, or an index not above the previous one.
             RuntimeError: the writer is closed.
         """
-        if self._file is None:
+        if self.closed:
             msg = f"{self.path}: writer is closed"
             raise RuntimeError(msg)
         line = format_row(self.fmt, values)
@@ -113,29 +108,8 @@ class TableWriter:
         if self._last_index is not None and index <= self._last_index:
             msg = f"{self.path}: index {index} not above the previous {self._last_index}"
             raise ValueError(msg)
-        self._file.write(line)
-        self._file.flush()
+        self.write_line(line)
         self._last_index = index
-
-    def close(self) -> None:
-        """Flush, fsync and close (idempotent)."""
-        if self._file is None:
-            return
-        self._file.flush()
-        os.fsync(self._file.fileno())
-        self._file.close()
-        self._file = None
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def _parse(fmt: TableFormat, path: Path, line_no: int, line: str) -> tuple[Value, ...]:

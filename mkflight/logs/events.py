@@ -14,13 +14,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
-from typing import Any, Self, TextIO
+from typing import Any
 
 from mkflight.errors import ReplayError
+from mkflight.logs._file import LineFile
 
 FILE_NAME = "events.jsonl"
 
@@ -45,12 +44,11 @@ def _finite(obj: Any) -> Any:
     return obj
 
 
-class EventsWriter:
+class EventsWriter(LineFile):
     """Creates ``events.jsonl`` in a flight folder and appends one line per event."""
 
     def __init__(self, folder: str | Path, file_name: str = FILE_NAME) -> None:
-        self.path = Path(folder) / file_name
-        self._file: TextIO | None = self.path.open("x", encoding="utf-8", newline="\n")
+        super().__init__(Path(folder) / file_name, "utf-8")
 
     def write(self, t_ns: int, event: str, /, **fields: Any) -> None:
         """Append one event and flush it.
@@ -60,35 +58,14 @@ class EventsWriter:
             TypeError: a field value JSON cannot represent.
             RuntimeError: the writer is closed.
         """
-        if self._file is None:
+        if self.closed:
             msg = f"{self.path}: writer is closed"
             raise RuntimeError(msg)
         if "t_ns" in fields or "event" in fields:
             msg = f"{self.path}: field names t_ns and event are reserved"
             raise ValueError(msg)
         record = {"t_ns": int(t_ns), "event": event, **_finite(fields)}
-        self._file.write(json.dumps(record, allow_nan=False, separators=(",", ":")) + "\n")
-        self._file.flush()
-
-    def close(self) -> None:
-        """Flush, fsync and close (idempotent)."""
-        if self._file is None:
-            return
-        self._file.flush()
-        os.fsync(self._file.fileno())
-        self._file.close()
-        self._file = None
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
+        self.write_line(json.dumps(record, allow_nan=False, separators=(",", ":")) + "\n")
 
 
 @dataclass(frozen=True, slots=True)
