@@ -171,11 +171,20 @@ def build_parser() -> argparse.ArgumentParser:
     hover.add_argument("--seed", type=int, metavar="N", help="random seed (default sim.seed)")
     hover.add_argument("--height", type=float, metavar="M", help="hover height (default 0.6)")
     hover.add_argument("--log-dir", metavar="DIR", help="flight folder (default: new, dated)")
+    hover.add_argument(
+        "--excite",
+        type=float,
+        default=0.0,
+        metavar="M",
+        help="move the HOLD set-point between +-M m in x and y (random 1.5-3 s dwell): "
+        "a response test for 'analyze latency'",
+    )
     hover.add_argument("--json", action="store_true", help="one JSON object")
     hover.set_defaults(
         func=_command(
             "mkflight.commands.sim_hover:cmd_sim_hover",
             duration_s="duration",
+            excite_m="excite",
             seed="seed",
             height_m="height",
             log_dir="log_dir",
@@ -311,10 +320,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     latency = analyze_commands.add_parser(
         "latency",
-        help="command-to-velocity lag by cross-correlation (seed §F, Fig 8)",
-        description="Normalised cross-correlation of the commanded pitch (roll) and the "
-        "body velocity along x (y) for lags 0..20 steps of 50 ms; prints the lag at the "
-        "peak and the curve (seed §F, Fig 8).",
+        help="the vehicle's response lag by cross-correlation (seed §F, Fig 8)",
+        description="Normalised cross-correlation of the commanded pitch (roll) with the "
+        "laser's body-frame acceleration along x (y), i.e. the body velocity differenced, for "
+        "lags 0..20 steps: the peak is the response lag (delay + lag of the attitude loop). "
+        "Also the FC's own angles against the command, and the seed's Fig 8 curve (command "
+        "against velocity, which adds the integration). Needs excitation: a calm hover "
+        "barely moves ('sim hover --excite 0.2').",
     )
     latency.add_argument("log_dir", metavar="LOGDIR", help="the flight folder")
     latency.add_argument("--json", action="store_true", help="one JSON object")

@@ -1,24 +1,40 @@
-"""The vehicle's response lag by cross-correlation of command and velocity (seed §F, Fig 8).
+"""The vehicle's response lag by cross-correlation of command and response (seed §F, Fig 8).
 
-The seed correlates the body-frame velocity with the pitch angle and reads a peak at about
-4 steps of 50 ms, i.e. the MK responds ≈ 200 ms later. Here the commanded tilt of each
-50 ms step (TABLE IV ``ControlPitch``/``ControlRoll``, MK counts) is correlated with the
-laser's body-frame velocity (TABLE III ``B_Vel.x``/``B_Vel.y``), resampled to the 50 ms rows
-by nearest time, for lags 0..``max_lag`` steps; the x and y curves are averaged.
+The seed correlates the body-frame velocity with the pitch and reads a peak at about 4
+steps of 50 ms: "the MK responds 200 ms later". Its vehicle model (and ours, SPEC §8) is a
+pure delay d followed by a first-order lag τ from the commanded to the flown tilt; for a
+command that varies slowly against τ that is a delay of d + τ, the **response lag** this
+module estimates (measured on the simulator flown with ``--excite 0.2``: d + τ = 0.15,
+0.2, 0.3, 0.35 s with τ ≤ 0.1 s are read within a step; a long lag against the closed
+loop's commands reads short: d = 0.1, τ = 0.2 s reads 0.23 s, because those commands
+are not slow against τ). Three curves, each the x/y mean of the normalised cross-correlation
+r[k] = corr(drive[t], response[t + k]) for k = 0..``max_lag`` steps:
 
-Signs (SPEC §1, §4): our pitch command is θ* = -ControlPitch/k and it asks for the
-acceleration a_x = -g·θ*, so the x drive is ``+ControlPitch``; our roll command is
-φ* = -ControlRoll/k and asks for a_y = +g·φ*, so the y drive is ``-ControlRoll``. A positive
-correlation at lag k means that the velocity moves the way the command pushed it k steps
-later.
+* **acceleration** (the lag reported): the body-frame velocity of the laser (TABLE III
+  ``B_Vel.x``/``B_Vel.y``) differenced to an acceleration. Tilt makes acceleration
+  (a = g·tilt), so the acceleration follows the command by the response lag. Correlating
+  the velocity itself (the seed's Fig 8 literally) adds the integration: a command held
+  for a while keeps pushing the velocity, and that curve peaks later the longer the
+  commands dwell — it is kept as ``velocity``, but it is not the lag.
+* **attitude**: the FC's own angles (TABLE IV ``AnglePitch``/``AngleRoll``) against the
+  commanded angle: the attitude loop alone, without the laser.
+* **velocity**: the seed's Fig 8 curve as it is.
 
-What the lag means: the velocity responds to the tilt through the attitude loop's delay and
-lag *and* an integration (velocity is the integral of the acceleration), so the peak is
-later than the attitude delay alone, and in closed-loop hover the controller's feedback
-(command opposing velocity) pulls the curve down at small lags. It is the "command to
-velocity" response time of the seed's Fig 8, not a pure transport delay. Row times are
-the step events' (TABLE IV; else index 1 at 50 ms) and ``(index - 1) x 100 ms`` (TABLE
-III: index 1 at the first scan, 0 s): the alignment is good to about one 50 ms step.
+Signs (SPEC §1, §4): our pitch command is θ* = -ControlPitch/k and it asks for a_x = -g·θ*,
+so the x drive is ``+ControlPitch`` (attitude: ``-ControlPitch`` against θ); our roll
+command is φ* = -ControlRoll/k asking for a_y = +g·φ*, so the y drive is ``-ControlRoll``
+(attitude: ``-ControlRoll`` against φ). A positive r at lag k: the response moves the way
+the command pushed it k steps later.
+
+Times: the TABLE IV rows' (the ``step`` events) and the TABLE III rows' scan times (the
+``scan`` events; else ``(index - 1) x 100 ms``). A laser velocity is the difference of two
+poses one scan apart, so it is the velocity half a scan period before its row; an
+acceleration from two of those is one scan period before. Responses are resampled to the
+TABLE IV rows by nearest time, and the peak is refined to a fraction of a step by a
+parabola through it and its neighbours.
+
+A calm closed-loop hover has little excitation (peak r below :data:`WEAK_PEAK_R`): fly a
+set-point square wave (``sim hover --excite 0.2``) or stick inputs.
 """
 
 from __future__ import annotations
@@ -80,9 +96,23 @@ def peak_lag(curve: FloatArray) -> int:
         AnalysisInputError: no finite value (no motion in the log, or too few rows).
     """
     if not np.any(np.isfinite(curve)):
-        msg = "no correlation: the commands or velocities do not vary (or too few rows)"
+        msg = "no correlation: the commands or responses do not vary (or too few rows)"
         raise AnalysisInputError(msg)
     return int(np.nanargmax(curve))
+
+
+def refine_peak(curve: FloatArray, k: int) -> float:
+    """The peak's lag to a fraction of a step: the vertex of the parabola through k-1, k, k+1.
+
+    ``k`` itself when a neighbour is missing or the three points are not a maximum.
+    """
+    if k <= 0 or k >= len(curve) - 1:
+        return float(k)
+    a, b, c = float(curve[k - 1]), float(curve[k]), float(curve[k + 1])
+    den = a - 2.0 * b + c
+    if not (math.isfinite(a) and math.isfinite(c)) or den >= 0:
+        return float(k)
+    return k + max(-0.5, min(0.5, 0.5 * (a - c) / den))
 
 
 def resample_nearest(
@@ -101,42 +131,56 @@ def resample_nearest(
     return out
 
 
-@dataclass(frozen=True, slots=True)
-class Latency:
-    """The lag at the peak of the mean x/y curve, and the per-axis curves."""
+def acceleration_from_velocity(
+    t_s: FloatArray, vel_mps: FloatArray, period_s: float
+) -> tuple[FloatArray, FloatArray]:
+    """(times, accelerations) from laser velocities stamped at their scan's time.
 
-    lag_steps: int
-    lag_s: float
+    Each velocity belongs half a scan period before its row; the difference of two
+    consecutive ones belongs midway between those. Pairs further apart than 1.5 periods
+    (a skipped scan) are dropped.
+    """
+    t = np.asarray(t_s, dtype=np.float64)
+    v = np.asarray(vel_mps, dtype=np.float64)
+    dt = np.diff(t)
+    ok = (dt > 0) & (dt <= 1.5 * period_s)
+    acc = np.diff(v)[ok] / dt[ok]
+    t_mid = 0.5 * (t[:-1] + t[1:])[ok] - 0.5 * period_s
+    return t_mid, acc
+
+
+@dataclass(frozen=True, slots=True)
+class LagCurve:
+    """One response's correlation: the x/y mean curve, the per-axis ones and the peak."""
+
     curve: FloatArray
-    lag_x_steps: int | None
     curve_x: FloatArray
-    lag_y_steps: int | None
     curve_y: FloatArray
-    samples: int
-    period_s: float = IMU_PERIOD_S
+    lag_steps: int
+    lag_fine_steps: float
+    lag_x_steps: int | None
+    lag_y_steps: int | None
 
     @property
     def peak_r(self) -> float:
         """The correlation at the peak (below :data:`WEAK_PEAK_R`: a weak, unreliable lag)."""
         return float(self.curve[self.lag_steps])
 
-    def as_dict(self) -> dict[str, object]:
-        """The ``--json`` object (NaN in a curve becomes ``null``)."""
+    def as_dict(self, period_s: float) -> dict[str, object]:
+        """JSON-ready (NaN in a curve becomes ``null``)."""
 
         def clean(a: FloatArray) -> list[float | None]:
             return [round(float(x), 4) if math.isfinite(x) else None for x in a]
 
         return {
             "lag_steps": self.lag_steps,
-            "lag_s": round(self.lag_s, 4),
-            "curve": clean(self.curve),
-            "lag_x_steps": self.lag_x_steps,
-            "curve_x": clean(self.curve_x),
-            "lag_y_steps": self.lag_y_steps,
-            "curve_y": clean(self.curve_y),
+            "lag_s": round(self.lag_fine_steps * period_s, 4),
             "peak_r": round(self.peak_r, 4),
-            "samples": self.samples,
-            "period_s": round(self.period_s, 6),
+            "lag_x_steps": self.lag_x_steps,
+            "lag_y_steps": self.lag_y_steps,
+            "curve": clean(self.curve),
+            "curve_x": clean(self.curve_x),
+            "curve_y": clean(self.curve_y),
         }
 
 
@@ -144,51 +188,138 @@ def _peak_or_none(curve: FloatArray) -> int | None:
     return int(np.nanargmax(curve)) if np.any(np.isfinite(curve)) else None
 
 
-def estimate_latency(
-    *,
-    index4: FloatArray,
-    control_pitch_counts: FloatArray,
-    control_roll_counts: FloatArray,
-    index3: FloatArray,
-    b_vel_x_mps: FloatArray,
-    b_vel_y_mps: FloatArray,
-    max_lag: int = MAX_LAG_STEPS,
-    t4_s: FloatArray | None = None,
-) -> Latency:
-    """The command-to-velocity lag from TABLE IV and TABLE III columns (signs: module doc).
-
-    ``t4_s``: the TABLE IV rows' times (s) when known (the ``step`` events' ``t_ns``: the
-    FC's DebugOut period is ≈ 53 ms, not 50); else ``index x 50 ms``. ``lag_s`` is the lag
-    times the median row period.
+def lag_curve(
+    drive_x: FloatArray, resp_x: FloatArray, drive_y: FloatArray, resp_y: FloatArray, max_lag: int
+) -> LagCurve:
+    """The x and y correlations, their mean (over the axes that have one) and its peak.
 
     Raises:
         AnalysisInputError: no finite correlation on either axis.
     """
-    if t4_s is None:
-        t4 = np.asarray(index4, dtype=np.float64) * IMU_PERIOD_S
-    else:
-        t4 = np.asarray(t4_s, dtype=np.float64)
-    period_s = float(np.median(np.diff(t4))) if len(t4) > 1 else IMU_PERIOD_S
-    t3 = (np.asarray(index3, dtype=np.float64) - 1.0) * LASER_PERIOD_S
-    vx = resample_nearest(t3, np.asarray(b_vel_x_mps), t4, LASER_PERIOD_S)
-    vy = resample_nearest(t3, np.asarray(b_vel_y_mps), t4, LASER_PERIOD_S)
-    drive_x = np.asarray(control_pitch_counts, dtype=np.float64)
-    drive_y = -np.asarray(control_roll_counts, dtype=np.float64)
-    cx = lagged_correlation(drive_x, vx, max_lag)
-    cy = lagged_correlation(drive_y, vy, max_lag)
+    cx = lagged_correlation(drive_x, resp_x, max_lag)
+    cy = lagged_correlation(drive_y, resp_y, max_lag)
     both = np.vstack([cx, cy])
     counts = np.sum(np.isfinite(both), axis=0)
     sums = np.nansum(both, axis=0)
     mean = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
     lag = peak_lag(mean)
-    return Latency(
-        lag_steps=lag,
-        lag_s=lag * period_s,
+    return LagCurve(
         curve=mean,
-        lag_x_steps=_peak_or_none(cx),
         curve_x=cx,
-        lag_y_steps=_peak_or_none(cy),
         curve_y=cy,
+        lag_steps=lag,
+        lag_fine_steps=refine_peak(mean, lag),
+        lag_x_steps=_peak_or_none(cx),
+        lag_y_steps=_peak_or_none(cy),
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class Latency:
+    """The response lag (acceleration curve) and the attitude and velocity curves."""
+
+    acceleration: LagCurve
+    attitude: LagCurve | None
+    velocity: LagCurve | None
+    samples: int
+    period_s: float = IMU_PERIOD_S
+
+    @property
+    def lag_steps(self) -> int:
+        """The response lag in whole steps (the acceleration curve's peak)."""
+        return self.acceleration.lag_steps
+
+    @property
+    def lag_s(self) -> float:
+        """The response lag in seconds (refined peak x the median step period)."""
+        return self.acceleration.lag_fine_steps * self.period_s
+
+    @property
+    def peak_r(self) -> float:
+        """The acceleration curve's correlation at its peak."""
+        return self.acceleration.peak_r
+
+    def as_dict(self) -> dict[str, object]:
+        """The ``--json`` object: the lag, then each curve's own figures."""
+        return {
+            "lag_steps": self.lag_steps,
+            "lag_s": round(self.lag_s, 4),
+            "peak_r": round(self.peak_r, 4),
+            "period_s": round(self.period_s, 6),
+            "samples": self.samples,
+            "acceleration": self.acceleration.as_dict(self.period_s),
+            "attitude": None if self.attitude is None else self.attitude.as_dict(self.period_s),
+            "velocity": None if self.velocity is None else self.velocity.as_dict(self.period_s),
+        }
+
+
+def _curve_or_none(
+    drive_x: FloatArray, resp_x: FloatArray, drive_y: FloatArray, resp_y: FloatArray, max_lag: int
+) -> LagCurve | None:
+    """:func:`lag_curve`, or None when neither axis correlates (no data or no variance)."""
+    try:
+        return lag_curve(drive_x, resp_x, drive_y, resp_y, max_lag)
+    except AnalysisInputError:
+        return None
+
+
+def estimate_latency(
+    *,
+    t4_s: FloatArray,
+    control_pitch_counts: FloatArray,
+    control_roll_counts: FloatArray,
+    t3_s: FloatArray,
+    b_vel_x_mps: FloatArray,
+    b_vel_y_mps: FloatArray,
+    angle_pitch_rad: FloatArray | None = None,
+    angle_roll_rad: FloatArray | None = None,
+    max_lag: int = MAX_LAG_STEPS,
+) -> Latency:
+    """The response lag from TABLE IV and TABLE III columns and their rows' times (s).
+
+    ``t3_s`` are the scans' times (see the module doc); the lag in seconds is the refined
+    peak times the median TABLE IV period (the FC's DebugOut period is ≈ 53 ms, not 50).
+
+    Raises:
+        AnalysisInputError: no finite acceleration correlation on either axis.
+    """
+    t4 = np.asarray(t4_s, dtype=np.float64)
+    t3 = np.asarray(t3_s, dtype=np.float64)
+    period_s = float(np.median(np.diff(t4))) if len(t4) > 1 else IMU_PERIOD_S
+    scan_s = float(np.median(np.diff(t3))) if len(t3) > 1 else LASER_PERIOD_S
+    cp = np.asarray(control_pitch_counts, dtype=np.float64)
+    cr = np.asarray(control_roll_counts, dtype=np.float64)
+    drive_x, drive_y = cp, -cr
+    tax, ax = acceleration_from_velocity(t3, np.asarray(b_vel_x_mps), scan_s)
+    tay, ay = acceleration_from_velocity(t3, np.asarray(b_vel_y_mps), scan_s)
+    acceleration = lag_curve(
+        drive_x,
+        resample_nearest(tax, ax, t4, scan_s),
+        drive_y,
+        resample_nearest(tay, ay, t4, scan_s),
+        max_lag,
+    )
+    t_vel = t3 - 0.5 * scan_s
+    velocity = _curve_or_none(
+        drive_x,
+        resample_nearest(t_vel, np.asarray(b_vel_x_mps, dtype=np.float64), t4, scan_s),
+        drive_y,
+        resample_nearest(t_vel, np.asarray(b_vel_y_mps, dtype=np.float64), t4, scan_s),
+        max_lag,
+    )
+    attitude = None
+    if angle_pitch_rad is not None and angle_roll_rad is not None:
+        attitude = _curve_or_none(
+            -cp,
+            np.asarray(angle_pitch_rad, dtype=np.float64),
+            -cr,
+            np.asarray(angle_roll_rad, dtype=np.float64),
+            max_lag,
+        )
+    return Latency(
+        acceleration=acceleration,
+        attitude=attitude,
+        velocity=velocity,
         samples=len(t4),
         period_s=period_s,
     )

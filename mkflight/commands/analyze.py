@@ -7,7 +7,14 @@ from pathlib import Path
 
 import numpy as np
 
-from mkflight.analysis.latency import SEED_LAG_STEPS, WEAK_PEAK_R, estimate_latency
+from mkflight.analysis.latency import (
+    IMU_PERIOD_S,
+    LASER_PERIOD_S,
+    SEED_LAG_STEPS,
+    WEAK_PEAK_R,
+    LagCurve,
+    estimate_latency,
+)
 from mkflight.analysis.precision import (
     SEED_TABLE_IX,
     SETTLE_S,
@@ -96,13 +103,32 @@ def cmd_analyze_precision(*, log_dir: str, truth: str | None, as_json: bool) -> 
     return 0
 
 
+def _event_times_s(folder: Path, event: str, rows: int) -> np.ndarray | None:
+    """The ``event`` events' times (s), if the events log has exactly one per table row."""
+    path = folder / EVENTS_FILE
+    if not path.is_file() or path.stat().st_size == 0:
+        return None
+    times = [e.t_ns for e in read_events(path).events if e.event == event]
+    if len(times) != rows:
+        return None
+    return np.asarray(times, dtype=np.float64) / 1e9
+
+
+def _print_curve(name: str, curve: LagCurve, period_s: float) -> None:
+    print(
+        f"  {name:<13}{curve.lag_steps:3d} steps = {curve.lag_fine_steps * period_s * 1000:4.0f} ms"
+        f"  r {curve.peak_r:5.2f}  (x: {curve.lag_x_steps}, y: {curve.lag_y_steps})"
+    )
+
+
 def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
-    """Print the command-to-velocity lag of a flight by cross-correlation (seed §F, Fig 8).
+    """Print the vehicle's response lag by cross-correlation (seed §F, Fig 8).
 
     Args:
-        log_dir: the flight folder (its ``imu_50ms.log`` and ``laser_100ms.log``).
-        as_json: one object with ``lag_steps``, ``lag_s``, ``curve`` (lags 0..20), and the
-            per-axis ``lag_x_steps``, ``curve_x``, ``lag_y_steps``, ``curve_y``.
+        log_dir: the flight folder (its ``imu_50ms.log`` and ``laser_100ms.log``; the
+            ``step`` and ``scan`` events' times when present).
+        as_json: one object: ``lag_steps``, ``lag_s``, ``peak_r``, ``period_s``, and per
+            curve (``acceleration``, ``attitude``, ``velocity``) its lag and curves.
 
     Raises:
         AnalysisInputError: a missing or empty log, or no correlation (exit 1).
@@ -115,19 +141,19 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
         if len(rows) < 3:
             msg = f"{folder / name}: {len(rows)} rows, too few to correlate"
             raise AnalysisInputError(msg)
-    # The rows' times: the step events' (one per TABLE IV row), else index x 50 ms.
-    t4_s = None
-    events_path = folder / EVENTS_FILE
-    if events_path.is_file() and events_path.stat().st_size > 0:
-        steps = [e.t_ns for e in read_events(events_path).events if e.event == "step"]
-        if len(steps) == len(t4):
-            t4_s = np.asarray(steps, dtype=np.float64) / 1e9
+    # The rows' times: the events' when there is one per row; else the indices' nominal ones.
+    t4_s = _event_times_s(folder, "step", len(t4))
+    t3_s = _event_times_s(folder, "scan", len(t3))
+    if t4_s is None or t3_s is None:
+        t4_s = np.asarray(t4["index"], dtype=np.float64) * IMU_PERIOD_S
+        t3_s = (np.asarray(t3["index"], dtype=np.float64) - 1.0) * LASER_PERIOD_S
     lat = estimate_latency(
         t4_s=t4_s,
-        index4=np.asarray(t4["index"], dtype=np.float64),
         control_pitch_counts=np.asarray(t4["ControlPitch"], dtype=np.float64),
         control_roll_counts=np.asarray(t4["ControlRoll"], dtype=np.float64),
-        index3=np.asarray(t3["index"], dtype=np.float64),
+        angle_pitch_rad=np.asarray(t4["AnglePitch"], dtype=np.float64),
+        angle_roll_rad=np.asarray(t4["AngleRoll"], dtype=np.float64),
+        t3_s=t3_s,
         b_vel_x_mps=np.asarray(t3["B_Vel.x"], dtype=np.float64),
         b_vel_y_mps=np.asarray(t3["B_Vel.y"], dtype=np.float64),
     )
@@ -135,23 +161,26 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
         print(json.dumps(lat.as_dict()))
         return 0
     print(
-        f"response lag of {folder} (seed §F, Fig 8): {lat.lag_steps} steps = "
-        f"{lat.lag_s * 1000:.0f} ms at {lat.period_s * 1000:.1f} ms a step "
-        f"(x: {lat.lag_x_steps}, y: {lat.lag_y_steps}; "
-        f"the seed: ~{SEED_LAG_STEPS} steps = {SEED_LAG_STEPS * 50} ms)"
+        f"response lag of {folder}: {lat.lag_steps} steps = {lat.lag_s * 1000:.0f} ms at "
+        f"{lat.period_s * 1000:.1f} ms a step (the seed, Fig 8: ~{SEED_LAG_STEPS} steps = "
+        f"{SEED_LAG_STEPS * 50} ms)"
     )
-    print(
-        "  commanded tilt -> body velocity: attitude delay and lag plus the integration "
-        "to velocity; not a pure transport delay"
-    )
+    _print_curve("acceleration", lat.acceleration, lat.period_s)
+    if lat.attitude is not None:
+        _print_curve("attitude", lat.attitude, lat.period_s)
+    if lat.velocity is not None:
+        _print_curve("velocity", lat.velocity, lat.period_s)
+    print("  acceleration: commanded tilt -> laser body acceleration (the response lag)")
+    print("  attitude: -> the FC's angles; velocity: the seed's Fig 8 (adds the integration)")
     if lat.peak_r < WEAK_PEAK_R:
         print(
             f"  weak peak (r = {lat.peak_r:.2f} < {WEAK_PEAK_R}): too little excitation "
-            "(a calm closed-loop hover); fly steps or stick inputs for a reliable lag"
+            "(a calm closed-loop hover); fly steps ('sim hover --excite 0.2') or stick inputs"
         )
-    print(f"  {'lag':>4} {'ms':>5} {'r':>7} {'r_x':>7} {'r_y':>7}")
-    for k in range(len(lat.curve)):
-        r = [f"{float(a[k]):7.3f}" for a in (lat.curve, lat.curve_x, lat.curve_y)]
+    curves = [lat.acceleration, lat.attitude, lat.velocity]
+    print(f"  {'lag':>4} {'ms':>5} {'r_acc':>7} {'r_att':>7} {'r_vel':>7}")
+    for k in range(len(lat.acceleration.curve)):
+        r = [" " * 7 if c is None else f"{float(c.curve[k]):7.3f}" for c in curves]
         mark = "  <- peak" if k == lat.lag_steps else ""
         print(f"  {k:4d} {k * lat.period_s * 1000:5.0f} {' '.join(r)}{mark}")
     return 0

@@ -8,11 +8,13 @@ from pathlib import Path
 
 from mkflight.config import load_config
 from mkflight.errors import ConfigError
+from mkflight.flight.step import MAX_HOLD_OFFSET_M
 
 
 def cmd_sim_hover(
     *,
     duration_s: float,
+    excite_m: float,
     seed: int | None,
     height_m: float | None,
     log_dir: str | None,
@@ -24,6 +26,9 @@ def cmd_sim_hover(
     from mkflight.sim.hover import run_hover
 
     cfg = load_config(config_path, overrides)
+    if not 0.0 <= excite_m <= MAX_HOLD_OFFSET_M:
+        msg = f"--excite must be within 0..{MAX_HOLD_OFFSET_M} m, got {excite_m}"
+        raise ConfigError(msg)
     stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
     folder = Path(log_dir) if log_dir else Path(cfg.logging.dir) / f"sim-hover-{stamp}"
     if folder.exists() and any(folder.iterdir()):
@@ -35,6 +40,7 @@ def cmd_sim_hover(
         seed=cfg.sim.seed if seed is None else seed,
         log_dir=folder,
         height_m=height_m,
+        excite_m=excite_m,
     )
     if as_json:
         print(json.dumps(result.as_dict()))
@@ -43,7 +49,8 @@ def cmd_sim_hover(
         f"simulated {result.sim_s:.1f} s in {result.wall_s:.2f} s "
         f"({result.realtime_factor:.0f}x real time), logs in {result.log_dir}"
     )
-    print(f"hold {result.hold_s:.1f} s  (precision about the set-point, truth):")
+    about = f"the set-point, a ±{excite_m:g} m square wave" if excite_m > 0 else "the set-point"
+    print(f"hold {result.hold_s:.1f} s  (precision about {about}, truth):")
     print(f"  std  x {result.std_x_m:.4f} m  y {result.std_y_m:.4f} m  z {result.std_z_m:.4f} m")
     print(f"  rms  x {result.rms_x_m:.4f} m  y {result.rms_y_m:.4f} m  z {result.rms_z_m:.4f} m")
     print(f"  landed: {result.landed}; failsafe events: {len(result.failsafes)}")

@@ -32,11 +32,11 @@ The shell (daemon, simulator, replay) owns ports, time and files; it only moves 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from mkflight.clock import NS_PER_S
 from mkflight.config import Config
-from mkflight.control.controller import Controller, ControlMode
+from mkflight.control.controller import Controller, ControlMode, Setpoint
 from mkflight.control.phases import (
     Phase,
     PhaseEvent,
@@ -61,6 +61,8 @@ from mkflight.safety.failsafe import (
 #: this fraction of the hover feed-forward gas, for at most BLIND_DESCENT_S, then the pilot.
 BLIND_DESCENT_GAS_FRACTION = 0.85
 BLIND_DESCENT_S = 5.0
+MAX_HOLD_OFFSET_M = 1.0
+"""The largest HOLD set-point offset :meth:`FlightCore.set_hold_offset` accepts."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -118,6 +120,22 @@ class FlightCore:
         self._blind_since_ns: int | None = None
         self._index3 = 0
         self._index4 = 0
+        self._hold_offset_m = (0.0, 0.0)
+        self.active_setpoint: Setpoint | None = None
+        """The set-point the controller was given on the last step (HOLD: with the offset)."""
+
+    def set_hold_offset(self, dx_m: float, dy_m: float) -> None:
+        """Move the HOLD set-point by (dx, dy) in W from the take-off x, y (an excitation).
+
+        For response tests (``sim hover --excite``, ``analyze latency``): each component is
+        clamped to ±:data:`MAX_HOLD_OFFSET_M`; a non-finite one counts as 0. Take-off and
+        landing ignore it: they stay above the take-off point.
+        """
+
+        def safe(v: float) -> float:
+            return min(MAX_HOLD_OFFSET_M, max(-MAX_HOLD_OFFSET_M, v)) if math.isfinite(v) else 0.0
+
+        self._hold_offset_m = (safe(dx_m), safe(dy_m))
 
     def _blind_descent(self, t_ns: int, take_control: bool) -> Command:
         """Level, no yaw, a little under hover gas; the pilot's after BLIND_DESCENT_S."""
@@ -226,14 +244,19 @@ class FlightCore:
         self.phase_state = out_phase.state
         command = Command(t_ns, 0, 0, 0, 0, take_control=out_phase.take_control)
         used_last = False
-        if out_phase.run_controllers and out_phase.setpoint is not None:
+        setpoint = out_phase.setpoint
+        if setpoint is not None and out_phase.phase is Phase.HOLD and self._hold_offset_m != (0, 0):
+            dx, dy = self._hold_offset_m
+            setpoint = replace(setpoint, x_m=setpoint.x_m + dx, y_m=setpoint.y_m + dy)
+        self.active_setpoint = setpoint
+        if out_phase.run_controllers and setpoint is not None:
             mode = out_phase.mode if est.pose_valid else ControlMode.LEVEL
             dt_s = _dt_s(t_ns, self.controller.last_valid_t_ns)
             control = None
             if fresh:
                 control = self.controller.update(
                     est,
-                    out_phase.setpoint,
+                    setpoint,
                     (imu.pitch_rad, imu.roll_rad),
                     imu.battery_v,
                     dt_s,

@@ -104,6 +104,36 @@ class HoverFaults:
     drop_height: bool = False
 
 
+class Excitation:
+    """A random square wave per axis: ±amplitude, each level held 1.5-3 s (uniform, seeded).
+
+    Random dwell times make the commands broadband enough for a clean cross-correlation
+    (a fixed period would give a periodic curve with several equal peaks).
+    """
+
+    MIN_DWELL_S = 1.5
+    MAX_DWELL_S = 3.0
+
+    def __init__(self, amplitude_m: float, rng: np.random.Generator) -> None:
+        self.amplitude_m = amplitude_m
+        self._rng = rng
+        self._level = [1.0, -1.0]
+        self._next_ns: list[int] | None = None
+
+    def _dwell_ns(self) -> int:
+        return int(self._rng.uniform(self.MIN_DWELL_S, self.MAX_DWELL_S) * NS_PER_S)
+
+    def offset_m(self, t_ns: int) -> tuple[float, float]:
+        """The (dx, dy) offset at ``t_ns`` (times must not go back)."""
+        if self._next_ns is None:
+            self._next_ns = [t_ns + self._dwell_ns(), t_ns + self._dwell_ns()]
+        for axis in (0, 1):
+            while t_ns >= self._next_ns[axis]:
+                self._level[axis] = -self._level[axis]
+                self._next_ns[axis] += self._dwell_ns()
+        return self.amplitude_m * self._level[0], self.amplitude_m * self._level[1]
+
+
 def _advance(
     vehicle: VehicleState,
     sticks: Sticks,
@@ -133,8 +163,15 @@ def run_hover(
     log_dir: Path,
     height_m: float | None = None,
     faults: HoverFaults | None = None,
+    excite_m: float = 0.0,
 ) -> HoverResult:
-    """Fly a simulated hover of ``duration_s`` (take-off, hold, land) and measure it."""
+    """Fly a simulated hover of ``duration_s`` (take-off, hold, land) and measure it.
+
+    ``excite_m`` > 0 moves the HOLD set-point in x and y, independently, between ±excite_m
+    with random dwell times (:class:`Excitation`): the input a response test needs
+    (``analyze latency``). The precision is then the tracking error about the moving
+    set-point.
+    """
     wall0, cpu0 = time.perf_counter(), time.process_time()
     rng = np.random.default_rng(seed)
     params = VehicleParams.from_config(cfg)
@@ -146,6 +183,7 @@ def run_hover(
     fault_from_ns = int(faults.from_s * NS_PER_S) if math.isfinite(faults.from_s) else 2**62
     max_height_m = 0.0
     stick_gas = cfg.sim.fc.stick_gas
+    excitation = Excitation(excite_m, np.random.default_rng([seed, 1])) if excite_m > 0 else None
 
     log_dir.mkdir(parents=True, exist_ok=True)
     info = new_flight_info(datetime.now(UTC), cfg, fc_version=cfg.sim.fc.version)
@@ -196,6 +234,7 @@ def run_hover(
                 )
                 if row3 is not None:
                     t3.write_row(row3)
+                    events.write(pose.t_ns, "scan", index=row3.index)  # the row's scan time
             # The FC's DebugOut: measured, in MK counts, back to SI (SPEC §1 both ways).
             m = imu_measured_si(vehicle, params, rng)
             battery = battery_reading_v(vehicle, params, rng)
@@ -215,6 +254,8 @@ def run_hover(
             if faults.imu is not None and t_ns >= fault_from_ns:
                 imu = faults.imu(imu)
             max_height_m = max(max_height_m, vehicle.height_m)
+            if excitation is not None and core.phase is Phase.HOLD:
+                core.set_hold_offset(*excitation.offset_m(t_ns))
             out = core.imu_step(
                 imu,
                 PhaseRequests(
@@ -227,7 +268,7 @@ def run_hover(
             command = out.command
             t4.write_row(out.row)
             # What the two tables do not hold (SPEC §6): height, gas, battery, phase, action.
-            sp_now = core.phase_state.setpoint
+            sp_now = core.active_setpoint
             events.write(
                 t_ns,
                 "step",
@@ -249,7 +290,7 @@ def run_hover(
             for pe in out.phase_events:
                 events.write(pe.t_ns, "phase", to=pe.to_phase.name, reason=pe.reason)
             if out.phase is Phase.HOLD and out.estimate.pose_valid:
-                sp = core.phase_state.setpoint
+                sp = core.active_setpoint
                 if hold_start_ns is None:
                     hold_start_ns = t_ns
                 if sp is not None and t_ns - hold_start_ns >= SETTLE_S * NS_PER_S and t_ns < end_ns:

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from mkflight.config import Config
 from mkflight.control.limits import command_within_limits
 from mkflight.control.phases import Phase, PhaseRequests
-from mkflight.flight.step import FlightCore
+from mkflight.flight.step import MAX_HOLD_OFFSET_M, FlightCore
 from mkflight.msgs import ImuSample, Pose2D
 from mkflight.safety.failsafe import FailsafeAction
 
@@ -120,3 +120,27 @@ def test_tilt_commands_stay_within_max_tilt(x_err: float, y_err: float) -> None:
         out = core.imu_step(level_imu(t_ns), PhaseRequests(takeoff=True, handshake_ok=True))
         tilt_rad = math.hypot(out.command.nick_counts, out.command.roll_counts) / 120.0
         assert tilt_rad <= CFG.control.max_tilt_rad + 1.5 / 120.0  # + rounding to counts
+
+
+def test_hold_offset_moves_only_the_hold_setpoint_and_is_bounded() -> None:
+    """The excitation offset (sim hover --excite) shifts HOLD's set-point, clamped to
+    ±MAX_HOLD_OFFSET_M, a NaN counts as 0; the commanded tilt follows its direction."""
+    core = FlightCore(Config())
+    core.set_hold_offset(0.3, -0.2)  # before HOLD: take-off ignores it
+    t_ns = fly_to_hold(core)
+    assert core.active_setpoint is not None
+    base_x, base_y = core.phase_state.setpoint.x_m, core.phase_state.setpoint.y_m  # type: ignore[union-attr]
+    t_ns += STEP_NS
+    core.laser_step(Pose2D(t_ns, 0.0, 0.0, 0.0), 0.6, t_ns=t_ns)
+    out = core.imu_step(level_imu(t_ns), PhaseRequests(takeoff=True, handshake_ok=True))
+    assert out.phase is Phase.HOLD
+    assert core.active_setpoint.x_m == base_x + 0.3
+    assert core.active_setpoint.y_m == base_y - 0.2
+    # Forward (+x) set-point: nose down = + nick; right (-y here: left) = + roll (SPEC §1).
+    assert out.command.nick_counts > 0
+    assert out.command.roll_counts > 0
+    core.set_hold_offset(5.0, math.nan)
+    t_ns += STEP_NS
+    core.imu_step(level_imu(t_ns), PhaseRequests(takeoff=True, handshake_ok=True))
+    assert core.active_setpoint.x_m == base_x + MAX_HOLD_OFFSET_M
+    assert core.active_setpoint.y_m == base_y

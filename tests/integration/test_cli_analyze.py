@@ -50,15 +50,38 @@ def test_precision_table_and_json(flight: Path) -> None:
 
 
 def test_latency_json(flight: Path) -> None:
+    """A calm hover: a lag, its curves, and the weak-peak warning in the text output."""
     code, out, err = run_cli("analyze", "latency", str(flight), "--json")
     assert code == 0, err
     d = json.loads(out)
     assert 0 <= d["lag_steps"] <= 20
-    assert len(d["curve"]) == 21
-    assert d["lag_s"] == pytest.approx(d["lag_steps"] * d["period_s"], abs=1e-3)
+    for name in ("acceleration", "attitude", "velocity"):
+        assert len(d[name]["curve"]) == 21
+    assert d["lag_s"] == pytest.approx(d["acceleration"]["lag_s"])
     code, out, err = run_cli("analyze", "latency", str(flight))
     assert code == 0, err
     assert "<- peak" in out
+    assert "weak peak" in out
+
+
+def test_excited_sim_flight_latency_is_the_vehicles(tmp_path: Path) -> None:
+    """Issue 7 through the CLI: 'sim hover --excite' then 'analyze latency' reads the default
+    vehicle's 0.1 s attitude delay + 0.1 s lag within one 50 ms step."""
+    folder = tmp_path / "f"
+    code, _, err = run_cli(
+        "sim", "hover", "--duration", "40", "--excite", "0.2", "--seed", "5",
+        "--log-dir", str(folder), "--json",
+    )  # fmt: skip
+    assert code == 0, err
+    code, out, err = run_cli("analyze", "latency", str(folder), "--json")
+    assert code == 0, err
+    d = json.loads(out)
+    assert abs(d["lag_s"] - 0.2) <= 0.05
+    assert d["peak_r"] > 0.3
+    assert abs(d["attitude"]["lag_s"] - 0.2) <= 0.05
+    code, _, err = run_cli("sim", "hover", "--excite", "nan", "--log-dir", str(tmp_path / "g"))
+    assert code == 2
+    assert "--excite" in err
 
 
 def test_missing_and_empty_files(tmp_path: Path) -> None:
