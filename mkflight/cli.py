@@ -15,6 +15,7 @@ from collections.abc import Callable, Sequence
 from typing import NoReturn
 
 from mkflight import __version__, cli_types
+from mkflight.cli_flight import add_flight_commands
 from mkflight.errors import ConfigError, MkflightError, PortNotFoundError
 
 EXIT_OK = 0
@@ -156,42 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
         )
     )
 
-    sim = commands.add_parser("sim", help="the simulator")
-    sim_commands = sim.add_subparsers(dest="sim_command", metavar="COMMAND", parser_class=_Parser)
-    sim_commands.required = True
-    hover = sim_commands.add_parser(
-        "hover",
-        parents=[config_opts],
-        help="fly a simulated hover in lock-step and print its precision",
-        description="Estimator, controllers, failsafe and vehicle model in lock-step, far "
-        "faster than real time: take off, hold, land; writes the flight folder (TABLE III "
-        "and IV, flight.json, truth.txt) and prints the hover precision against truth.",
-    )
-    hover.add_argument("--duration", type=float, default=60.0, metavar="S", help="flight time")
-    hover.add_argument("--seed", type=int, metavar="N", help="random seed (default sim.seed)")
-    hover.add_argument("--height", type=float, metavar="M", help="hover height (default 0.6)")
-    hover.add_argument("--log-dir", metavar="DIR", help="flight folder (default: new, dated)")
-    hover.add_argument(
-        "--excite",
-        type=float,
-        default=0.0,
-        metavar="M",
-        help="move the HOLD set-point between +-M m in x and y (random 1.5-3 s dwell): "
-        "a response test for 'analyze latency'",
-    )
-    hover.add_argument("--json", action="store_true", help="one JSON object")
-    hover.set_defaults(
-        func=_command(
-            "mkflight.commands.sim_hover:cmd_sim_hover",
-            duration_s="duration",
-            excite_m="excite",
-            seed="seed",
-            height_m="height",
-            log_dir="log_dir",
-            as_json="json",
-            **_CONFIG_ARGS,
-        )
-    )
+    add_flight_commands(commands, config_opts, _command, _Parser, _CONFIG_ARGS)
 
     calibrate = commands.add_parser("calibrate", help="calibrations from measurements")
     calibrate_commands = calibrate.add_subparsers(

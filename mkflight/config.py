@@ -135,6 +135,7 @@ class ScanmatchConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, k
     max_points: Annotated[int, Meta(ge=0, le=100000)] = 0
     keyframe_distance_m: Annotated[float, Meta(gt=0, le=5)] = 0.10
     keyframe_angle_rad: Annotated[float, Meta(gt=0, le=3.2)] = 0.1745
+    worker: Literal["process", "inline"] = "process"  # where the daemon runs the matcher
 
 
 class SafetyConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):

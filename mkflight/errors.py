@@ -32,3 +32,16 @@ class PortNotFoundError(LinkError):
 
 class ReplayError(MkflightError):
     """A recording cannot be replayed."""
+
+
+class PreflightError(MkflightError):
+    """A pre-flight check failed: the vehicle does not take off (exit 1); names the check."""
+
+    def __init__(self, check: str, detail: str) -> None:
+        super().__init__(f"pre-flight check '{check}' failed: {detail}")
+        self.check = check
+        self.detail = detail
+
+
+class FlightError(MkflightError):
+    """The flight ended on a failure (the FC vanished, a task crashed); exit 1 after landing."""

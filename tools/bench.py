@@ -12,6 +12,11 @@ Run: ``pip install -e '.[bench]' && python tools/bench.py`` (``--json`` for mach
   is mkflight's link (serialx, eager writes) and, as the baseline, the same loop on
   pyserial-asyncio (whose transport queues every write for the next event-loop turn).
   Both ends use ``time.perf_counter_ns`` (CLOCK_MONOTONIC), one clock for both processes.
+* ``step``: CPU per flight step (``FlightCore.imu_step``/``laser_step``) in a lock-step hover.
+* ``flight``: two real-time simulated flights of ``--flight-duration`` s (default 600): the
+  daemon's latency with ICP running, step timing, missed steps, CPU and precision, with the
+  matcher in its own process against the same flight with ICP on the loop
+  (``tools/bench_flight.py``).
 """
 
 from __future__ import annotations
@@ -271,7 +276,14 @@ def summarize(values: list[float]) -> dict[str, float]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "--only", choices=("codec", "latency", "scanmatch", "step"), help="run one group"
+        "--only", choices=("codec", "latency", "scanmatch", "step", "flight"), help="run one group"
+    )
+    parser.add_argument(
+        "--flight-duration",
+        type=float,
+        default=600.0,
+        metavar="S",
+        help="each simulated flight of the 'flight' group (two of them, real time)",
     )
     parser.add_argument("--samples", type=int, default=400, help="latency samples per variant")
     parser.add_argument("--rounds", type=int, default=3, help="alternating rounds per variant")
@@ -316,6 +328,10 @@ def main() -> int:
         import bench_scanmatch  # tools/bench_scanmatch.py, beside this file
 
         result["scanmatch"] = bench_scanmatch.run()
+    if args.only in (None, "flight"):
+        import bench_flight  # tools/bench_flight.py, beside this file
+
+        result["flight"] = bench_flight.run(args.flight_duration)
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
@@ -351,6 +367,10 @@ def main() -> int:
 
         print("Scan matching, per scan (datasets beside CSM's figures from the data README):")
         print(bench_scanmatch.format_table(result["scanmatch"]))
+    if "flight" in result:
+        import bench_flight
+
+        print(bench_flight.format_table(result["flight"]))
     return 0
 
 

@@ -43,7 +43,7 @@ from typing import TextIO
 import numpy as np
 import numpy.typing as npt
 
-from mkflight.config import ScanmatchConfig, load_config
+from mkflight.config import load_config
 from mkflight.errors import MkflightError, ProtocolError
 from mkflight.scanmatch import (
     IcpParams,
@@ -57,6 +57,7 @@ from mkflight.scanmatch import (
     read_carmen,
     scan_to_points,
 )
+from mkflight.scanmatch.icp import icp_params_from_config
 
 #: URG-04LX geometry (SPEC §2): 1024 steps per turn, step 384 straight ahead.
 URG_STEP_RAD = 2.0 * math.pi / 1024.0
@@ -240,25 +241,6 @@ def _progress(total: int) -> Iterator[Callable[[], None] | None]:
         yield lambda: bar.update(1)
     finally:
         bar.close()
-
-
-def icp_params_from_config(sm: ScanmatchConfig) -> IcpParams:
-    """The ``scanmatch`` config section as :class:`IcpParams`."""
-    return IcpParams(
-        max_iterations=sm.max_iterations,
-        max_correspondence_m=sm.max_correspondence_m,
-        min_correspondence_m=sm.min_correspondence_m,
-        keep_fraction=sm.keep_fraction,
-        robust_scale_m=sm.robust_scale_m,
-        step_tolerance_m=sm.step_tolerance_m,
-        step_tolerance_rad=sm.step_tolerance_rad,
-        min_matches=sm.min_matches,
-        min_matched_fraction=sm.min_matched_fraction,
-        max_rms_m=sm.max_rms_m,
-        degeneracy_threshold=sm.degeneracy_threshold,
-        noise_floor=sm.noise_floor,
-        max_points=sm.max_points,
-    )
 
 
 def format_pose_line(t_s: float, pose: Pose) -> str:

@@ -153,12 +153,25 @@ class FlightCore:
         return self.phase_state.phase
 
     def laser_step(
-        self, pose: Pose2D | None, height_m: float | None, *, t_ns: int, degenerate: bool = False
+        self,
+        pose: Pose2D | None,
+        height_m: float | None,
+        *,
+        t_ns: int,
+        degenerate: bool = False,
+        arrival_ns: int | None = None,
     ) -> Table3Row | None:
         """A scan's pose (None: the match failed) and hat height, stamped at the scan's time.
 
+        ``arrival_ns``: when the pose reached the flight step (the laser's staleness counts
+        from it); default the last step's time. The daemon passes the time of the DebugOut
+        whose step applies it: after a gap in DebugOut the last step's time is old, and a
+        fresh pose must not look stale.
+
         Returns the TABLE III row, or None before the estimator has a laser velocity.
         """
+        if arrival_ns is not None:
+            self._now_ns = max(self._now_ns, arrival_ns)
         self.counters.laser_steps += 1
         self._degenerate = degenerate
         used = False

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mkflight.config import ScanmatchConfig
 from mkflight.scanmatch.geometry import (
     IDENTITY,
     FloatArray,
@@ -282,4 +283,23 @@ def match(
         converged=converged,
         min_information=min_info,
         n_points=n,
+    )
+
+
+def icp_params_from_config(sm: ScanmatchConfig) -> IcpParams:
+    """The ``scanmatch`` config section as :class:`IcpParams`."""
+    return IcpParams(
+        max_iterations=sm.max_iterations,
+        max_correspondence_m=sm.max_correspondence_m,
+        min_correspondence_m=sm.min_correspondence_m,
+        keep_fraction=sm.keep_fraction,
+        robust_scale_m=sm.robust_scale_m,
+        step_tolerance_m=sm.step_tolerance_m,
+        step_tolerance_rad=sm.step_tolerance_rad,
+        min_matches=sm.min_matches,
+        min_matched_fraction=sm.min_matched_fraction,
+        max_rms_m=sm.max_rms_m,
+        degeneracy_threshold=sm.degeneracy_threshold,
+        noise_floor=sm.noise_floor,
+        max_points=sm.max_points,
     )

@@ -144,3 +144,21 @@ def test_hold_offset_moves_only_the_hold_setpoint_and_is_bounded() -> None:
     core.imu_step(level_imu(t_ns), PhaseRequests(takeoff=True, handshake_ok=True))
     assert core.active_setpoint.x_m == base_x + MAX_HOLD_OFFSET_M
     assert core.active_setpoint.y_m == base_y
+
+
+def test_a_pose_applied_after_a_debugout_gap_is_fresh() -> None:
+    """After 0.5 s without DebugOut (a garbage burst on the FC's line), the poses that
+    queued up are applied with the new step's time: the laser is not stale."""
+    core = FlightCore(Config())
+    t_ns = fly_to_hold(core)
+    gap_ns = 500_000_000
+    for k in range(1, 6):  # scans taken during the gap, applied when the step resumes
+        core.laser_step(
+            Pose2D(t_ns + k * 100_000_000, 0.0, 0.0, 0.0),
+            0.6,
+            t_ns=t_ns + k * 100_000_000,
+            arrival_ns=t_ns + gap_ns,
+        )
+    out = core.imu_step(level_imu(t_ns + gap_ns), PhaseRequests(takeoff=True, handshake_ok=True))
+    assert out.action is FailsafeAction.NONE
+    assert out.phase is Phase.HOLD

@@ -1,0 +1,130 @@
+"""The ``fly`` and ``sim`` subcommands' arguments (split from :mod:`mkflight.cli`).
+
+argparse only, like ``cli.py``: each parser's runner imports its ``cmd_*`` lazily.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from typing import Any
+
+Runner = Callable[[argparse.Namespace], int]
+
+
+def add_flight_commands(
+    commands: Any,
+    config_opts: argparse.ArgumentParser,
+    command: Callable[..., Runner],
+    parser_class: type[argparse.ArgumentParser],
+    config_args: dict[str, str],
+) -> None:
+    """Add ``fly`` and ``sim`` (live, and ``sim hover``) to the command tree."""
+    fly = commands.add_parser(
+        "fly",
+        parents=[config_opts],
+        help="fly: pre-flight checks, take-off, hold, soft landing, release",
+        description="The flight daemon (SPEC §7): pre-flight checks (FC version and "
+        "DebugOut rate, level, battery, laser info and scan rate, hat height on the ground, "
+        "scan match), the neutral handshake, take-off to --height, hold at the take-off "
+        "x, y, psi, and a soft landing and release on SIGINT/SIGTERM, --duration or a "
+        "failsafe. Writes a flight folder (TABLE III/IV, events.jsonl, flight.json, raw "
+        "recordings of both ports). Exit 0 after a landing, 1 on a failure (after the "
+        "landing and release), 2 on bad usage.",
+    )
+    fly.add_argument("--hover", action="store_true", help="the mission: hold position")
+    fly.add_argument(
+        "--sim", action="store_true", help="fly the simulated vehicle (its own process, ptys)"
+    )
+    fly.add_argument("--mk-port", metavar="DEV", help="the FlightCtrl's serial port")
+    fly.add_argument("--laser-port", metavar="DEV", help="the URG's serial port")
+    fly.add_argument("--height", type=float, metavar="M", help="hover height (default 0.6)")
+    fly.add_argument("--duration", type=float, metavar="S", help="land this long after the checks")
+    fly.add_argument("--log-dir", metavar="DIR", help="flight folder (default: new, dated)")
+    fly.add_argument("--json", action="store_true", help="the summary as one JSON object")
+    fly.set_defaults(
+        func=command(
+            "mkflight.commands.fly:cmd_fly",
+            hover="hover",
+            sim="sim",
+            mk_port="mk_port",
+            laser_port="laser_port",
+            height_m="height",
+            duration_s="duration",
+            log_dir="log_dir",
+            as_json="json",
+            **config_args,
+        )
+    )
+
+    sim = commands.add_parser(
+        "sim",
+        parents=[config_opts],
+        help="the simulator: the vehicle on two ptys, or 'sim hover' in lock-step",
+        description="Without a subcommand: the simulated vehicle (vehicle model, FC "
+        "emulator, URG emulator in a room) in real time on two pseudo-terminals; prints "
+        "'mk PATH' and 'laser PATH' and runs until SIGINT/SIGTERM or --duration. Fly it "
+        "with 'mkflight fly --hover --mk-port PATH --laser-port PATH'.",
+    )
+    sim.add_argument("--seed", dest="live_seed", type=int, metavar="N", help="random seed")
+    sim.add_argument("--mk-link", metavar="PATH", help="a stable symlink to the FC's pty")
+    sim.add_argument("--laser-link", metavar="PATH", help="a stable symlink to the URG's pty")
+    sim.add_argument("--truth", metavar="FILE", help="write the ground truth (t x y z) here")
+    sim.add_argument(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="KIND@T[:ARG]",
+        help="inject a fault T s after start, e.g. laser-stall@20:2, fc-vanish@30, battery@25:10.0",
+    )
+    sim.add_argument(
+        "--duration", dest="live_duration", type=float, metavar="S", help="stop after S s"
+    )
+    sim.set_defaults(
+        func=command(
+            "mkflight.commands.sim_run:cmd_sim",
+            seed="live_seed",
+            mk_link="mk_link",
+            laser_link="laser_link",
+            truth="truth",
+            faults="fault",
+            duration_s="live_duration",
+            **config_args,
+        )
+    )
+    sim_commands = sim.add_subparsers(
+        dest="sim_command", metavar="COMMAND", parser_class=parser_class
+    )
+    hover = sim_commands.add_parser(
+        "hover",
+        parents=[config_opts],
+        help="fly a simulated hover in lock-step and print its precision",
+        description="Estimator, controllers, failsafe and vehicle model in lock-step, far "
+        "faster than real time: take off, hold, land; writes the flight folder (TABLE III "
+        "and IV, flight.json, truth.txt) and prints the hover precision against truth.",
+    )
+    hover.add_argument("--duration", type=float, default=60.0, metavar="S", help="flight time")
+    hover.add_argument("--seed", type=int, metavar="N", help="random seed (default sim.seed)")
+    hover.add_argument("--height", type=float, metavar="M", help="hover height (default 0.6)")
+    hover.add_argument("--log-dir", metavar="DIR", help="flight folder (default: new, dated)")
+    hover.add_argument(
+        "--excite",
+        type=float,
+        default=0.0,
+        metavar="M",
+        help="move the HOLD set-point between +-M m in x and y (random 1.5-3 s dwell): "
+        "a response test for 'analyze latency'",
+    )
+    hover.add_argument("--json", action="store_true", help="one JSON object")
+    hover.set_defaults(
+        func=command(
+            "mkflight.commands.sim_hover:cmd_sim_hover",
+            duration_s="duration",
+            excite_m="excite",
+            seed="seed",
+            height_m="height",
+            log_dir="log_dir",
+            as_json="json",
+            **config_args,
+        )
+    )

@@ -1,0 +1,192 @@
+"""``mkflight fly --hover``: the flight daemon on real ports, or on the simulator's ptys."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import sys
+from datetime import UTC, datetime
+from pathlib import Path
+
+from mkflight.config import Config, load_config
+from mkflight.errors import ConfigError, FlightError, MkflightError, PortNotFoundError
+
+
+def _folder(cfg: Config, log_dir: str | None) -> Path:
+    """The flight folder: new or empty (a simulator's ``truth.txt`` may be there already)."""
+    stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
+    folder = Path(log_dir) if log_dir else Path(cfg.logging.dir) / f"flight-{stamp}"
+    if folder.exists() and any(p.name != "truth.txt" for p in folder.iterdir()):
+        msg = f"log dir {str(folder)!r} is not empty: a flight folder is never overwritten"
+        raise ConfigError(msg)
+    return folder
+
+
+def _truth_precision(folder: Path) -> dict[str, float | int] | None:
+    """The HOLD precision against the simulator's truth (None without truth or HOLD)."""
+    from mkflight.analysis.precision import (
+        AnalysisInputError,
+        hold_samples,
+        parse_truth,
+        with_truth,
+    )
+    from mkflight.analysis.precision import precision as measure
+    from mkflight.logs.events import read_events
+
+    truth = folder / "truth.txt"
+    if not truth.is_file():
+        return None
+    try:
+        samples = hold_samples(read_events(folder / "events.jsonl").events)
+        truth_rows = parse_truth(truth.read_text(encoding="utf-8"), str(truth))
+        p = measure(with_truth(samples, truth_rows), "truth")
+    except (AnalysisInputError, MkflightError, OSError):
+        return None
+    return {
+        "std_x_m": round(p.x.std_m, 5),
+        "std_y_m": round(p.y.std_m, 5),
+        "std_z_m": round(p.z.std_m, 5),
+        "samples": p.samples,
+    }
+
+
+async def _fly(
+    cfg: Config,
+    *,
+    sim: bool,
+    mk_port: str | None,
+    laser_port: str | None,
+    folder: Path,
+    height_m: float | None,
+    duration_s: float | None,
+    config_path: str | None,
+    overrides: list[str],
+) -> tuple[int, str, dict[str, object]]:
+    from mkflight.flight.app import FlightApp, FlightOptions
+    from mkflight.flight.sim_process import SimProcess, start_sim
+
+    child: SimProcess | None = None
+    if sim:
+        folder.mkdir(parents=True, exist_ok=True)  # noqa: ASYNC240 - before any flight task
+        child = await start_sim(
+            config_path=config_path, overrides=overrides, truth=folder / "truth.txt"
+        )
+        mk_port, laser_port = child.mk_port, child.laser_port
+    if mk_port is None or laser_port is None:  # the caller checked: --sim or both ports
+        msg = "fly needs --mk-port and --laser-port (or --sim)"
+        raise ConfigError(msg)
+    try:
+        app = FlightApp(
+            cfg,
+            FlightOptions(
+                mk_port=mk_port,
+                laser_port=laser_port,
+                log_dir=folder,
+                height_m=height_m,
+                duration_s=duration_s,
+                status_tty=sys.stderr.isatty(),
+            ),
+        )
+        report = await app.fly()
+    finally:
+        if child is not None:
+            await child.stop()
+    return report.exit_code, report.reason, report.summary
+
+
+def _print_summary(
+    folder: Path, reason: str, summary: dict[str, object], truth: dict[str, float | int] | None
+) -> None:
+    """The end-of-flight lines: why it ended, precision, timing, CPU, failsafes."""
+    print(f"flight folder: {folder}")
+    print(f"ended: {reason} (phase {summary.get('final_phase')})")
+    if truth is not None:
+        print(
+            f"hold precision (truth): std x {truth['std_x_m']:.4f} m  "
+            f"y {truth['std_y_m']:.4f} m  z {truth['std_z_m']:.4f} m"
+        )
+    t = summary.get("timing")
+    if isinstance(t, dict) and t.get("steps"):
+        print(
+            f"{t['steps']} steps: command latency median {t['latency_median_ms']:.2f} ms, "
+            f"p99 {t['latency_p99_ms']:.2f} ms; added jitter p99 {t['added_jitter_p99_ms']:.2f} ms"
+        )
+        print(
+            f"DebugOut interval {t['period_median_ms']:.1f} ms, p99 deviation "
+            f"{t['jitter_p99_ms']:.1f} ms, {t['missed_steps']} missed"
+        )
+    matcher = summary.get("matcher")
+    per_scan = matcher.get("cpu_ms_per_scan") if isinstance(matcher, dict) else None
+    print(
+        f"CPU: daemon {summary.get('cpu_percent_of_one_core')} % of one core; scan matcher "
+        f"{per_scan} ms a scan"
+    )
+    failsafes = summary.get("failsafes")
+    unplanned = [f for f in failsafes if "stop_" not in f] if isinstance(failsafes, list) else []
+    print("failsafes: " + ("; ".join(unplanned) if unplanned else "none"))
+
+
+def cmd_fly(
+    *,
+    hover: bool,
+    sim: bool,
+    mk_port: str | None,
+    laser_port: str | None,
+    height_m: float | None,
+    duration_s: float | None,
+    log_dir: str | None,
+    as_json: bool,
+    config_path: str | None,
+    overrides: list[str],
+) -> int:
+    """Fly: pre-flight checks, handshake, take-off, hold, soft landing, release (SPEC §7).
+
+    Raises:
+        ConfigError: a usage error (no ``--hover``, missing ports, a non-empty log dir).
+        FlightError: the flight failed (exit 1, after the soft landing and release).
+    """
+    if not hover:
+        msg = "fly needs a mission: --hover (the only one so far)"
+        raise ConfigError(msg)
+    cfg = load_config(config_path, overrides)
+    if not sim and (mk_port is None or laser_port is None):
+        msg = "fly needs --mk-port and --laser-port (or --sim for the simulator)"
+        raise ConfigError(msg)
+    for name, value in (("--height", height_m), ("--duration", duration_s)):
+        if value is not None and not (value > 0 and value < 1e6):
+            msg = f"{name} must be a positive number, got {value}"
+            raise ConfigError(msg)
+    if height_m is not None and height_m > cfg.safety.max_height_m:
+        msg = f"--height {height_m:g} m is above safety.max_height_m {cfg.safety.max_height_m:g}"
+        raise ConfigError(msg)
+    if not sim:
+        for flag, port in (("--mk-port", mk_port), ("--laser-port", laser_port)):
+            if port is not None and not Path(port).exists():
+                msg = f"{flag} {port}: no such device"
+                raise PortNotFoundError(msg)
+    folder = _folder(cfg, log_dir)
+    code, reason, summary = asyncio.run(
+        _fly(
+            cfg,
+            sim=sim,
+            mk_port=mk_port,
+            laser_port=laser_port,
+            folder=folder,
+            height_m=height_m,
+            duration_s=duration_s,
+            config_path=config_path,
+            overrides=overrides,
+        )
+    )
+    truth = _truth_precision(folder)  # when a simulator wrote its truth there
+    if as_json:
+        print(
+            json.dumps(
+                {"log_dir": str(folder), "reason": reason, "truth_precision": truth, **summary}
+            )
+        )
+    else:
+        _print_summary(folder, reason, summary, truth)
+    if code != 0:
+        raise FlightError(reason)
+    return 0

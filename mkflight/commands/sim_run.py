@@ -1,0 +1,90 @@
+"""``mkflight sim``: the simulated vehicle on two pseudo-terminals until stopped (SPEC §8).
+
+It prints exactly two lines on stdout, ``mk PATH`` and ``laser PATH`` (a parent such as
+``fly --sim`` reads them), then serves both devices in real time until SIGINT, SIGTERM
+or ``--duration``, and stops cleanly (exit 0). Nothing else goes to stdout; events go
+to stderr.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from mkflight.config import Config, load_config
+from mkflight.errors import ConfigError
+
+if TYPE_CHECKING:
+    from mkflight.sim.live import Fault
+
+
+def cmd_sim(
+    *,
+    config_path: str | None,
+    overrides: list[str],
+    seed: int | None,
+    mk_link: str | None,
+    laser_link: str | None,
+    truth: str | None,
+    faults: list[str],
+    duration_s: float | None,
+) -> int:
+    """Run the live simulator (:class:`~mkflight.sim.live.LiveSim`) until stopped.
+
+    Raises:
+        ConfigError: a bad config, fault string or duration; the truth file exists.
+    """
+    import asyncio
+
+    from mkflight.sim.live import parse_faults
+
+    cfg = load_config(config_path, overrides)
+    schedule = parse_faults(faults)
+    if duration_s is not None and not (math.isfinite(duration_s) and duration_s > 0):
+        msg = f"--duration must be a finite number of seconds > 0, got {duration_s}"
+        raise ConfigError(msg)
+    return asyncio.run(
+        _serve(
+            cfg,
+            seed=seed,
+            mk_link=mk_link,
+            laser_link=laser_link,
+            truth=truth,
+            faults=schedule,
+            duration_s=duration_s,
+        )
+    )
+
+
+async def _serve(
+    cfg: Config,
+    *,
+    seed: int | None,
+    mk_link: str | None,
+    laser_link: str | None,
+    truth: str | None,
+    faults: list[Fault],
+    duration_s: float | None,
+) -> int:
+    """Start, print the two paths, serve until a signal or the duration, stop."""
+    from mkflight.commands.interrupt import stop_on_signals
+    from mkflight.sim.live import LiveSim
+
+    stop = stop_on_signals()
+    sim = LiveSim(
+        cfg,
+        seed=seed,
+        mk_link=mk_link,
+        laser_link=laser_link,
+        truth_path=truth,
+        truth_origin_ns=0,  # t = host monotonic seconds, the flight logs' own time base
+        faults=faults,
+    )
+    mk_path, laser_path = await sim.start()
+    try:
+        print(f"mk {mk_path}", flush=True)
+        print(f"laser {laser_path}", flush=True)
+        await sim.serve(stop, duration_s)
+    finally:
+        await sim.stop()
+    return 0

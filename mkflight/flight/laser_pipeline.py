@@ -1,0 +1,323 @@
+"""One laser scan in, one world pose, hat height and degeneracy flag out (SPEC §1-3).
+
+:class:`LaserPipeline` is the pure core between the URG driver's :class:`~mkflight.msgs.Scan`
+records (10 Hz) and :meth:`mkflight.flight.step.FlightCore.laser_step`; the shell decides
+where it runs (in-process, or in a worker process: :mod:`mkflight.flight.matcher_worker`).
+
+Per scan:
+
+* **Height** from the hat steps (``laser.hat_steps``) by :func:`~mkflight.urg.hat.hat_height`
+  (SPEC eq 26, with the pitch and roll at the scan's time), or ``None`` with the reason.
+* **Points** from the scan steps (``laser.scan_steps``): step ``s`` is at body angle
+  ``b = -(s - 384)·2π/1024`` (right positive, SPEC §2). Each beam is rotated into the level
+  (heading) frame by ``R_y(θ) R_x(φ)`` -- the rotation of SPEC §3 -- and its horizontal
+  part is kept, so a tilted vehicle sees its vertical walls where they are (a 0.15 rad tilt
+  would otherwise stretch a 3 m wall by 3.4 cm). With a valid hat height, a beam that
+  drops below ``FLOOR_FRACTION`` of the sensor's height above the floor hit the floor, not
+  a wall, and is dropped. Unknown attitude (NaN): the beams are taken as level.
+* **Pose** from :class:`~mkflight.scanmatch.keyframe.KeyframeMatcher` (PL-ICP against
+  keyframes), ``dt_s`` from consecutive scans' ``t_ns``.
+
+Frames: the matcher works in standard 2-D math (x forward, y LEFT, θ counter-clockwise);
+mkflight's world frame W (SPEC §1) is x forward, y RIGHT, ψ clockwise. The two differ by a
+mirror of the y axis, which maps rigid motions to rigid motions, so the conversion at this
+edge is exact and per component: ``(x, y, ψ)_W = (x, -y, -θ)_math``, both ways, for poses
+and for motion increments alike. W is the matcher's frame at the first scan that gives a
+reference (the first *valid* scan of the flight): that scan's pose is (0, 0, 0).
+
+Nothing raises on a bad scan (all NaN, wrong length, a 2-D array, NaN attitude, time going
+backwards): the result says ``pose=None`` / ``height_m=None`` and why.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from mkflight.config import Config
+from mkflight.msgs import Pose2D, Scan
+from mkflight.scanmatch.geometry import FloatArray, Pose, wrap_angle
+from mkflight.scanmatch.icp import icp_params_from_config
+from mkflight.scanmatch.keyframe import KeyframeMatcher
+from mkflight.urg.hat import HatSettings, hat_height
+from mkflight.urg.units import URG_04LX
+
+#: The URG-04LX's front step and step angle (SPEC §2: step 384 ahead, 2π/1024 per step).
+FRONT_STEP = URG_04LX.afront_step
+STEP_RAD = URG_04LX.step_angle_rad
+#: A beam whose drop below the sensor exceeds this fraction of the sensor's height above
+#: the floor (hat height + ``laser.hat_offset_m``) is taken as a floor hit and not matched.
+FLOOR_FRACTION = 0.8
+#: Scan intervals outside this window (s) are not used for the matcher's velocity: a
+#: duplicate or backward stamp, or a 1 ns gap, would turn one scan's motion into an absurd
+#: velocity and the next prediction into a jump (the URG scans every 0.1 s).
+MIN_DT_S = 0.01
+MAX_DT_S = 1.0
+#: A motion prior beyond these is not a motion between two scans: it is ignored.
+MAX_PRIOR_STEP_M = 2.0
+MAX_PRIOR_TURN_RAD = math.pi
+#: Nanoseconds per second (``t_ns`` differences to ``dt_s``).
+_NS_PER_S = 1e9
+
+IntArray = npt.NDArray[np.int64]
+
+
+@dataclass(frozen=True, slots=True)
+class LaserResult:
+    """What one scan gave: the inputs of ``FlightCore.laser_step`` plus how they were found.
+
+    Attributes:
+        scan_t_ns: the scan's ``t_ns`` (host time of the front step): stamp the pose with it.
+        seq: the scan's sequence number.
+        pose: the scan's pose in the world frame W (SPEC §1: x forward, y right, ψ
+            clockwise, W fixed at the first valid scan), stamped ``scan_t_ns``; None when
+            the match failed (``pose_reason`` says why).
+        pose_reason: "" when ``pose`` is set, else why not.
+        height_m: hat height above the floor (eq 26), positive up; None when invalid.
+        height_reason: "" when ``height_m`` is set, else why not.
+        degenerate: an axis of the match is unobservable (a corridor): the pose's
+            component along it is the prediction's (SPEC §5: fail safe on it).
+        match_valid: the registration converged on enough good correspondences (True for
+            the first, reference-defining scan).
+        matched_fraction: inliers / points of the scan (0..1).
+        new_keyframe: this scan became the matcher's reference.
+        n_points: scan points handed to the matcher.
+        compute_s: thread CPU time of :meth:`LaserPipeline.process` (``time.thread_time``).
+        elapsed_s: wall time of the same call (``time.perf_counter``): a caller in another
+            process subtracts it from its round trip to get the IPC overhead.
+    """
+
+    scan_t_ns: int
+    seq: int
+    pose: Pose2D | None
+    pose_reason: str
+    height_m: float | None
+    height_reason: str
+    degenerate: bool
+    match_valid: bool
+    matched_fraction: float
+    new_keyframe: bool
+    n_points: int
+    compute_s: float
+    elapsed_s: float
+
+
+def pose_to_math(pose_w: Pose) -> Pose:
+    """A pose or increment in SPEC §1's (x fwd, y right, ψ cw) as the matcher's math frame.
+
+    The matcher's frame is (x forward, y left, θ counter-clockwise): y and the angle flip.
+    """
+    return (pose_w[0], -pose_w[1], -pose_w[2])
+
+
+def pose_from_math(pose: Pose) -> Pose:
+    """The matcher's (x, y left, θ ccw) as SPEC §1's (x fwd, y right, ψ cw), ψ in (-π, π]."""
+    return (pose[0], 0.0 - pose[1], 0.0 - wrap_angle(pose[2]))  # 0.0 - v: never -0.0
+
+
+def level_points(
+    ranges_m: FloatArray,
+    steps: IntArray,
+    pitch_rad: float,
+    roll_rad: float,
+    *,
+    min_range_m: float,
+    max_range_m: float,
+    floor_depth_m: float | None = None,
+) -> FloatArray:
+    """The valid beams as level-frame points in the matcher's math frame (x fwd, y left).
+
+    The beam of step ``s`` leaves along ``(cos b, sin b, 0)`` in the body frame (FRD,
+    ``b = -(s - 384)·2π/1024``); ``R_y(θ) R_x(φ)`` (SPEC §3) turns it into the level frame
+    ``(lx, ly, lz)`` (z down), and the hit point's horizontal part ``r·(lx, ly)`` is what a
+    vertical wall's 2-D map shows. Non-finite attitude counts as level.
+
+    Args:
+        ranges_m: (N,) ranges, NaN = invalid.
+        steps: (N,) URG step of each range, ascending (scan order is kept).
+        pitch_rad: pitch θ at the scan's time (SPEC §1, nose up positive).
+        roll_rad: roll φ at the scan's time (right side down positive).
+        min_range_m: smallest valid range (inclusive).
+        max_range_m: largest valid range (inclusive: DMAX is a distance).
+        floor_depth_m: the sensor's height above the floor when known: beams that drop
+            below ``FLOOR_FRACTION`` of it are floor hits and are left out.
+
+    Returns:
+        (M, 2) points ``(x forward, y left)`` in metres, M <= N, in step order.
+    """
+    if not (math.isfinite(pitch_rad) and math.isfinite(roll_rad)):
+        pitch_rad = roll_rad = 0.0
+    b = -(steps.astype(np.float64) - FRONT_STEP) * STEP_RAD
+    cb, sb = np.cos(b), np.sin(b)
+    cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
+    cr, sr = math.cos(roll_rad), math.sin(roll_rad)
+    lx = cp * cb + sp * sr * sb
+    ly = cr * sb
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(ranges_m) & (ranges_m >= min_range_m) & (ranges_m <= max_range_m)
+        if floor_depth_m is not None and math.isfinite(floor_depth_m):
+            lz = -sp * cb + cp * sr * sb
+            ok &= ranges_m * lz < FLOOR_FRACTION * floor_depth_m
+    r = ranges_m[ok]
+    return np.stack((r * lx[ok], -(r * ly[ok])), axis=1)
+
+
+def _scan_arrays(scan: Scan) -> tuple[FloatArray, IntArray] | str:
+    """The scan's ranges and steps as flat arrays, or why they cannot be had."""
+    try:
+        ranges = np.asarray(scan.ranges_m, dtype=np.float64)
+        if ranges.ndim != 1:
+            return f"bad scan: ranges have shape {ranges.shape}, expected one row"
+        first = int(scan.first_step)
+        steps = np.arange(first, first + ranges.shape[0], dtype=np.int64)
+    except (TypeError, ValueError, OverflowError) as err:
+        return f"bad scan: {err}"
+    return ranges, steps
+
+
+def _usable_prior(motion_prior: Pose | None) -> Pose | None:
+    """The prior in the matcher's frame, or None when it cannot be a motion between scans."""
+    if motion_prior is None:
+        return None
+    dx, dy, dyaw = motion_prior
+    if not (math.hypot(dx, dy) <= MAX_PRIOR_STEP_M and abs(dyaw) <= MAX_PRIOR_TURN_RAD):
+        return None  # also NaN / inf
+    return pose_to_math(motion_prior)
+
+
+def _in(steps: IntArray, bounds: tuple[int, int]) -> npt.NDArray[np.bool_]:
+    """Mask of the steps within ``bounds`` (inclusive)."""
+    return (steps >= bounds[0]) & (steps <= bounds[1])
+
+
+class LaserPipeline:
+    """Scans in, world poses and hat heights out; owns the keyframe matcher's state.
+
+    Args:
+        cfg: ``laser`` gives the hat and scan steps, the hat offset and the valid range
+            window; ``scanmatch`` the ICP tuning and keyframe policy.
+    """
+
+    def __init__(self, cfg: Config) -> None:
+        self._laser = cfg.laser
+        self._scanmatch = cfg.scanmatch
+        self._params = icp_params_from_config(cfg.scanmatch)
+        self._hat = HatSettings(offset_m=cfg.laser.hat_offset_m, min_range_m=cfg.laser.min_range_m)
+        self._matcher = self._new_matcher()
+        self._prev_t_ns: int | None = None
+        self._have_reference = False
+
+    def _new_matcher(self) -> KeyframeMatcher:
+        return KeyframeMatcher(
+            self._params,
+            keyframe_distance_m=self._scanmatch.keyframe_distance_m,
+            keyframe_angle_rad=self._scanmatch.keyframe_angle_rad,
+        )
+
+    def reset(self) -> None:
+        """Forget every keyframe: the next valid scan defines a new world frame W (a new flight)."""
+        self._matcher = self._new_matcher()
+        self._prev_t_ns = None
+        self._have_reference = False
+
+    def process(
+        self,
+        scan: Scan,
+        pitch_rad: float,
+        roll_rad: float,
+        motion_prior: Pose | None = None,
+    ) -> LaserResult:
+        """Height, points and pose of one scan (see the module docstring); never raises.
+
+        Args:
+            scan: the URG scan (``ranges_m[i]`` is step ``first_step + i``, NaN invalid).
+            pitch_rad: pitch at ``scan.t_ns`` (SPEC §1; NaN = unknown: no height, level
+                beams).
+            roll_rad: roll at ``scan.t_ns``.
+            motion_prior: the vehicle's motion since the previous scan, expressed in the
+                previous scan's body frame with SPEC §1's signs (dx forward, dy right, dψ
+                clockwise; e.g. the estimator's velocity times dt); None, non-finite or beyond
+                ``MAX_PRIOR_STEP_M`` / ``MAX_PRIOR_TURN_RAD`` = the matcher's
+                constant-velocity prediction (over ``dt_s`` from the scans' ``t_ns``, when
+                within ``MIN_DT_S``..``MAX_DT_S``).
+
+        Returns:
+            The :class:`LaserResult` of this scan.
+        """
+        t0_cpu, t0 = time.thread_time(), time.perf_counter()
+        arrays = _scan_arrays(scan)
+        if isinstance(arrays, str):
+            ranges: FloatArray = np.empty(0)
+            steps: IntArray = np.empty(0, dtype=np.int64)
+            bad_scan = arrays
+        else:
+            (ranges, steps), bad_scan = arrays, ""
+
+        hat_mask = _in(steps, self._laser.hat_steps)
+        height_m: float | None = None
+        if bad_scan:
+            height_reason = bad_scan
+        elif not hat_mask.any():
+            height_reason = f"no hat steps {self._laser.hat_steps} in the scan"
+        else:
+            hat = hat_height(ranges[hat_mask], pitch_rad, roll_rad, self._hat)
+            height_reason = hat.reason
+            if hat.valid:
+                height_m = hat.height_m
+
+        scan_mask = _in(steps, self._laser.scan_steps)
+        floor = None if height_m is None else height_m + self._laser.hat_offset_m
+        points = level_points(
+            ranges[scan_mask],
+            steps[scan_mask],
+            pitch_rad,
+            roll_rad,
+            min_range_m=self._laser.min_range_m,
+            max_range_m=self._laser.max_range_m,
+            floor_depth_m=floor,
+        )
+
+        dt_s = None
+        if self._prev_t_ns is not None:
+            dt_s = (scan.t_ns - self._prev_t_ns) / _NS_PER_S
+            dt_s = dt_s if MIN_DT_S <= dt_s <= MAX_DT_S else None
+        self._prev_t_ns = scan.t_ns
+        prior = _usable_prior(motion_prior)
+        update = self._matcher.update(points, motion_prior=prior, dt_s=dt_s)
+        result = update.result
+        n_points = int(points.shape[0])
+
+        pose: Pose2D | None = None
+        if update.new_keyframe:
+            self._have_reference = True
+        if result.valid and self._have_reference:
+            x_m, y_m, yaw_rad = pose_from_math(update.pose)
+            pose, pose_reason = Pose2D(scan.t_ns, x_m, y_m, yaw_rad), ""
+        elif bad_scan:
+            pose_reason = bad_scan
+        elif not self._have_reference:
+            pose_reason = f"no reference scan yet ({n_points} usable points)"
+        else:
+            pose_reason = (
+                f"match failed: {n_points} points, {result.matched_fraction:.2f} matched, "
+                f"rms {result.rms_m:.3f} m"
+            )
+        return LaserResult(
+            scan_t_ns=scan.t_ns,
+            seq=scan.seq,
+            pose=pose,
+            pose_reason=pose_reason,
+            height_m=height_m,
+            height_reason=height_reason,
+            degenerate=bool(result.degenerate and result.valid),
+            match_valid=bool(result.valid),
+            matched_fraction=float(result.matched_fraction),
+            new_keyframe=update.new_keyframe,
+            n_points=n_points,
+            compute_s=time.thread_time() - t0_cpu,
+            elapsed_s=time.perf_counter() - t0,
+        )

@@ -1,0 +1,106 @@
+"""Faults that enter inside the daemon: NaN in the estimate, a crash in the step (issue 8).
+
+The daemon (:class:`FlightApp`) and the simulator (:class:`LiveSim`) run in this test's
+event loop on real ptys; the fault goes in through the app's ``sample_filter`` seam.
+Every ExternControl the daemon wrote is read back from ``mk.raw``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+from mkflight.config import Config
+from mkflight.control.phases import Phase
+from mkflight.flight.app import FlightApp, FlightOptions
+from mkflight.flight.step import ImuStepOutput
+from mkflight.logs.events import read_events
+from mkflight.logs.raw import read_raw
+from mkflight.mk.codec import FrameParser
+from mkflight.mk.messages import ExternControl
+from mkflight.msgs import ImuSample
+from mkflight.sim.live import LiveSim
+
+GAS_MAX = Config().control.gas_max
+
+
+def _commands(folder: Path) -> list[ExternControl]:
+    parser = FrameParser()
+    out: list[ExternControl] = []
+    for rec in read_raw(folder / "mk.raw").records:
+        if rec.kind == "w":
+            out += [ExternControl.decode(f) for f in parser.feed(rec.data) if f.cmd == "b"]
+    return out
+
+
+class HoldFault:
+    """Lets the flight reach HOLD, then after ``after_steps`` steps applies ``fault``."""
+
+    def __init__(self, after_steps: int, fault: str) -> None:
+        self.after_steps = after_steps
+        self.fault = fault
+        self.hold_steps = 0
+        self.injected = 0
+
+    def on_step(self, out: ImuStepOutput) -> None:
+        if out.phase is Phase.HOLD:
+            self.hold_steps += 1
+
+    def filter(self, sample: ImuSample) -> ImuSample:
+        if self.hold_steps < self.after_steps:
+            return sample
+        self.injected += 1
+        if self.fault == "crash":
+            msg = "injected crash in the step"
+            raise RuntimeError(msg)
+        return dataclasses.replace(sample, acc_x_mps2=math.nan, pitch_rad=math.inf)
+
+
+async def _fly(tmp_path: Path, fault: HoldFault) -> tuple[int, str, Path]:
+    cfg = Config()
+    folder = tmp_path / "flight"
+    folder.mkdir()
+    sim = LiveSim(cfg, seed=3, truth_path=str(folder / "truth.txt"), truth_origin_ns=0)
+    mk, laser = await sim.start()
+    try:
+        app = FlightApp(
+            cfg,
+            FlightOptions(mk_port=mk, laser_port=laser, log_dir=folder, duration_s=40.0),
+            on_step=fault.on_step,
+            sample_filter=fault.filter,
+        )
+        report = await app.fly()
+    finally:
+        await sim.stop()
+    return report.exit_code, report.reason, folder
+
+
+async def test_nan_in_the_estimate_lands_with_every_command_in_limits(tmp_path: Path) -> None:
+    fault = HoldFault(after_steps=40, fault="nan")
+    code, reason, folder = await _fly(tmp_path, fault)
+    assert fault.injected > 0
+    assert code == 0, reason
+    assert reason.startswith("failsafe:")
+    causes = [e.fields.get("cause") for e in read_events(folder / "events.jsonl").events]
+    assert "nonfinite" in causes
+    cmds = _commands(folder)
+    for c in cmds:
+        assert 0 <= int(c.gas) <= GAS_MAX
+        assert all(-127 <= int(v) <= 127 for v in (c.nick, c.roll, c.yaw))
+    assert int(cmds[-1].config) == 0
+    truth = (folder / "truth.txt").read_text().splitlines()
+    assert float(truth[-1].split()[3]) < 0.05  # on the floor, not climbing away
+
+
+async def test_a_crash_in_the_step_releases_and_exits_1(tmp_path: Path) -> None:
+    fault = HoldFault(after_steps=20, fault="crash")
+    code, reason, folder = await _fly(tmp_path, fault)
+    assert code == 1
+    assert "injected crash" in reason
+    cmds = _commands(folder)
+    assert int(cmds[-1].config) == 0  # handed back to the pilot at once
+    assert sum(1 for c in cmds[-5:] if int(c.config) == 0) >= 3  # several release frames
+    events = read_events(folder / "events.jsonl").events
+    assert any(e.event == "crash" and e.fields.get("task") == "mk-step" for e in events)
+    read_raw(folder / "mk.raw")  # the recording is readable to its end
