@@ -283,7 +283,13 @@ def main() -> int:
         type=float,
         default=600.0,
         metavar="S",
-        help="each simulated flight of the 'flight' group (two of them, real time)",
+        help="the simulated flight of the 'flight' group (real time)",
+    )
+    parser.add_argument(
+        "--baseline-duration",
+        type=float,
+        metavar="S",
+        help="the 'flight' group's baseline flight (ICP inline; default: --flight-duration)",
     )
     parser.add_argument("--samples", type=int, default=400, help="latency samples per variant")
     parser.add_argument("--rounds", type=int, default=3, help="alternating rounds per variant")
@@ -331,7 +337,7 @@ def main() -> int:
     if args.only in (None, "flight"):
         import bench_flight  # tools/bench_flight.py, beside this file
 
-        result["flight"] = bench_flight.run(args.flight_duration)
+        result["flight"] = bench_flight.run(args.flight_duration, args.baseline_duration)
     if args.json:
         print(json.dumps(result, indent=2))
         return 0

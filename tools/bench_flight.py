@@ -59,12 +59,13 @@ def fly(duration_s: float, setting: str, folder: Path) -> dict[str, Any]:
     return summary
 
 
-def run(duration_s: float = 600.0) -> dict[str, Any]:
-    """Both variants, one flight each; figures per variant and the ratios."""
-    out: dict[str, Any] = {"duration_s": duration_s, "variants": {}}
+def run(duration_s: float = 600.0, baseline_s: float | None = None) -> dict[str, Any]:
+    """Both variants, one flight each (the baseline ``baseline_s`` long, default the same)."""
+    durations = {"process": duration_s, "inline (baseline)": baseline_s or duration_s}
+    out: dict[str, Any] = {"durations_s": durations, "variants": {}}
     with tempfile.TemporaryDirectory(prefix="mkflight-bench-") as tmp:
         for name, setting in VARIANTS.items():
-            s = fly(duration_s, setting, Path(tmp) / name.split()[0])
+            s = fly(durations[name], setting, Path(tmp) / name.split()[0])
             t = s["timing"]
             matcher = s["matcher"]
             out["variants"][name] = {
@@ -93,7 +94,9 @@ def run(duration_s: float = 600.0) -> dict[str, Any]:
 def format_table(result: dict[str, Any]) -> str:
     """The figures as a text table."""
     lines = [
-        f"Simulated flights of {result['duration_s']:g} s (fly --hover --sim):",
+        "Simulated flights (fly --hover --sim), "
+        + ", ".join(f"{k} {v:g} s" for k, v in result["durations_s"].items())
+        + ":",
         f"  {'variant':18s} {'lat med':>8s} {'lat p99':>8s} {'arr jit':>8s} {'add jit':>8s} "
         f"{'missed':>6s} {'CPU %':>6s} {'ICP ms':>7s} {'std x/y/z m':>22s}",
     ]

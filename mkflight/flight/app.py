@@ -83,6 +83,10 @@ ATTITUDE_HISTORY = 64  # DebugOut samples kept for the attitude at a scan's time
 HANDSHAKE_CONFIRMS = 3  # confirms of neutral frames needed before take-off
 
 
+class StopDeadlineError(FlightError):
+    """A stop request did not end in RELEASED in time: hand control back regardless."""
+
+
 @dataclass(frozen=True, slots=True)
 class FlightOptions:
     """What ``mkflight fly --hover`` was asked for (SPEC §7)."""
@@ -93,6 +97,7 @@ class FlightOptions:
     height_m: float | None = None
     duration_s: float | None = None
     status_tty: bool = False
+    stop_deadline_s: float = STOP_DEADLINE_S
 
 
 @dataclass(slots=True)
@@ -156,6 +161,8 @@ class FlightApp:
         self._matcher_cpu_s = 0.0
         self._matches = 0
         self._battery_v = math.nan
+        self._hold_cpu: tuple[float, float, float] | None = None
+        self._hold_end: tuple[float, float, float] | None = None
 
     # ----- the way in ---------------------------------------------------------------------
 
@@ -354,10 +361,32 @@ class FlightApp:
         self.notifier.watchdog()
         self._log_step(sample, out)
         self.stats.on_step(sample.t_ns, written, self.clock.now_ns())
+        self._note_hold(out.phase)
         self._last_out = out
         if self.on_step is not None:
             self.on_step(out)
         return out
+
+    def _note_hold(self, phase: Phase) -> None:
+        """CPU clocks at the start and end of HOLD: the steady-hover CPU (SPEC §9)."""
+        if phase is Phase.HOLD and self._hold_cpu is None:
+            self._hold_cpu = (time.process_time(), time.perf_counter(), self._matcher_cpu_s)
+        elif phase is not Phase.HOLD and self._hold_cpu is not None and self._hold_end is None:
+            self._hold_end = (time.process_time(), time.perf_counter(), self._matcher_cpu_s)
+
+    def _hold_cpu_percent(self) -> dict[str, float] | None:
+        """Daemon and matcher CPU during HOLD, % of one core (None without a HOLD)."""
+        if self._hold_cpu is None:
+            return None
+        end = self._hold_end or (time.process_time(), time.perf_counter(), self._matcher_cpu_s)
+        wall_s = end[1] - self._hold_cpu[1]
+        if wall_s <= 0:
+            return None
+        return {
+            "daemon": round(100.0 * (end[0] - self._hold_cpu[0]) / wall_s, 2),
+            "matcher": round(100.0 * (end[2] - self._hold_cpu[2]) / wall_s, 2),
+            "hold_s": round(wall_s, 1),
+        }
 
     def _log_step(self, sample: ImuSample, out: ImuStepOutput) -> None:
         if self._t4 is not None:
@@ -441,9 +470,10 @@ class FlightApp:
             duration_s = self.opts.duration_s
             if duration_s is not None and elapsed_s >= duration_s and self.stop_request is None:
                 self.request_stop(StopRequest.DURATION, f"--duration {duration_s:g} s")
-            if self.stop_at_ns is not None and (now - self.stop_at_ns) / NS_PER_S > STOP_DEADLINE_S:
-                msg = f"the landing did not end within {STOP_DEADLINE_S:g} s of the stop request"
-                raise FlightError(msg)
+            deadline_s = self.opts.stop_deadline_s
+            if self.stop_at_ns is not None and (now - self.stop_at_ns) / NS_PER_S > deadline_s:
+                msg = f"the landing did not end within {deadline_s:g} s of the stop request"
+                raise StopDeadlineError(msg)
             if time.monotonic() >= next_status:
                 next_status = time.monotonic() + STATUS_PERIOD_S
                 self._status()
@@ -511,6 +541,9 @@ class FlightApp:
                 for task in done - {mk}:
                     others.discard(task)
                     exc = task.exception()
+                    if isinstance(exc, StopDeadlineError):  # release now: the shutdown does it
+                        self._event(self.clock.now_ns(), "stop_deadline", error=str(exc))
+                        return exc
                     if exc is not None and crash is None:
                         crash = exc
                         self._event(
@@ -581,6 +614,7 @@ class FlightApp:
             "failsafes": list(counters.failsafe_events),
             "timing": self.stats.summary(),
             "cpu_percent_of_one_core": round(100.0 * cpu_s / wall_s, 2) if wall_s > 0 else None,
+            "cpu_percent_in_hold": self._hold_cpu_percent(),
             "matcher": {
                 "scans": self._matches,
                 "cpu_ms_per_scan": round(1000 * self._matcher_cpu_s / self._matches, 3)

@@ -17,7 +17,7 @@ column 2 ``B_Vel.y``; it is the body velocity along x. NaN (no valid value) is w
 
 from __future__ import annotations
 
-from dataclasses import astuple, dataclass, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 from mkflight.logs._table import TableData, TableFormat, TableWriter, read_table
@@ -54,6 +54,10 @@ class Table3Row:
     index: int
 
 
+_NAMES = tuple(f.name for f in fields(Table3Row))
+"""The row's fields in column order (``astuple`` would deep-copy every value)."""
+
+
 class Table3Writer(TableWriter):
     """Creates ``laser_100ms.log`` in a flight folder; each row is flushed as written."""
 
@@ -66,7 +70,7 @@ class Table3Writer(TableWriter):
         Raises:
             ValueError: ``index`` not above the previous row's.
         """
-        self.write_values(astuple(row))
+        self.write_values(tuple(getattr(row, name) for name in _NAMES))  # shallow
 
 
 def read_table3(path: str | Path) -> TableData:

@@ -16,7 +16,7 @@ all integers, as is ``index`` (+1 per 50 ms step, strictly increasing). NaN is w
 
 from __future__ import annotations
 
-from dataclasses import astuple, dataclass, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 from mkflight.logs._table import TableData, TableFormat, TableWriter, read_table
@@ -62,6 +62,10 @@ class Table4Row:
     index: int
 
 
+_NAMES = tuple(f.name for f in fields(Table4Row))
+"""The row's fields in column order (``astuple`` would deep-copy every value)."""
+
+
 class Table4Writer(TableWriter):
     """Creates ``imu_50ms.log`` in a flight folder; each row is flushed as written."""
 
@@ -74,7 +78,7 @@ class Table4Writer(TableWriter):
         Raises:
             ValueError: a count that is not an integer, or ``index`` not above the previous.
         """
-        self.write_values(astuple(row))
+        self.write_values(tuple(getattr(row, name) for name in _NAMES))  # shallow
 
 
 def read_table4(path: str | Path) -> TableData:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import signal
 from pathlib import Path
 
 from mkflight.config import Config
@@ -54,10 +56,16 @@ class HoldFault:
         if self.fault == "crash":
             msg = "injected crash in the step"
             raise RuntimeError(msg)
+        if self.fault == "sigterm":
+            if self.injected == 1:
+                os.kill(os.getpid(), signal.SIGTERM)  # the daemon's handler, not the default
+            return sample
         return dataclasses.replace(sample, acc_x_mps2=math.nan, pitch_rad=math.inf)
 
 
-async def _fly(tmp_path: Path, fault: HoldFault) -> tuple[int, str, Path]:
+async def _fly(
+    tmp_path: Path, fault: HoldFault, *, stop_deadline_s: float = 9.0
+) -> tuple[int, str, Path]:
     cfg = Config()
     folder = tmp_path / "flight"
     folder.mkdir()
@@ -66,7 +74,13 @@ async def _fly(tmp_path: Path, fault: HoldFault) -> tuple[int, str, Path]:
     try:
         app = FlightApp(
             cfg,
-            FlightOptions(mk_port=mk, laser_port=laser, log_dir=folder, duration_s=40.0),
+            FlightOptions(
+                mk_port=mk,
+                laser_port=laser,
+                log_dir=folder,
+                duration_s=40.0,
+                stop_deadline_s=stop_deadline_s,
+            ),
             on_step=fault.on_step,
             sample_filter=fault.filter,
         )
@@ -104,3 +118,16 @@ async def test_a_crash_in_the_step_releases_and_exits_1(tmp_path: Path) -> None:
     events = read_events(folder / "events.jsonl").events
     assert any(e.event == "crash" and e.fields.get("task") == "mk-step" for e in events)
     read_raw(folder / "mk.raw")  # the recording is readable to its end
+
+
+async def test_a_landing_that_overruns_its_deadline_is_released(tmp_path: Path) -> None:
+    """SIGTERM in HOLD with a 0.3 s deadline (a landing takes seconds): the watchdog ends
+    the flight, the shutdown hands control back, exit 1 naming the deadline."""
+    fault = HoldFault(after_steps=20, fault="sigterm")
+    code, reason, folder = await _fly(tmp_path, fault, stop_deadline_s=0.3)
+    assert code == 1
+    assert "did not end within 0.3 s" in reason
+    events = read_events(folder / "events.jsonl").events
+    assert any(e.event == "stop" and e.fields.get("request") == "sigterm" for e in events)
+    assert any(e.event == "stop_deadline" for e in events)
+    assert int(_commands(folder)[-1].config) == 0
