@@ -36,8 +36,8 @@ def add_flight_commands(
     fly.add_argument(
         "--sim", action="store_true", help="fly the simulated vehicle (its own process, ptys)"
     )
-    fly.add_argument("--mk-port", metavar="DEV", help="the FlightCtrl's serial port")
-    fly.add_argument("--laser-port", metavar="DEV", help="the URG's serial port")
+    fly.add_argument("--mk-port", metavar="DEV", help="the FlightCtrl's port (default mk.port)")
+    fly.add_argument("--laser-port", metavar="DEV", help="the URG's port (default laser.port)")
     fly.add_argument("--height", type=float, metavar="M", help="hover height (default 0.6)")
     fly.add_argument("--duration", type=float, metavar="S", help="land this long after the checks")
     fly.add_argument("--log-dir", metavar="DIR", help="flight folder (default: new, dated)")
@@ -80,9 +80,15 @@ def add_flight_commands(
     sim.add_argument(
         "--duration", dest="live_duration", type=float, metavar="S", help="stop after S s"
     )
+    sim.add_argument(
+        "--exit-on-eof",
+        action="store_true",
+        help="also stop when standard input ends (fly --sim: never outlive the daemon)",
+    )
     sim.set_defaults(
         func=command(
             "mkflight.commands.sim_run:cmd_sim",
+            exit_on_eof="exit_on_eof",
             seed="live_seed",
             mk_link="mk_link",
             laser_link="laser_link",

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from mkflight.config import Config, load_config
 from mkflight.errors import ConfigError, FlightError, MkflightError, PortNotFoundError
+from mkflight.logs.flight_json import json_safe
 
 
 def _folder(cfg: Config, log_dir: str | None) -> Path:
@@ -149,9 +150,9 @@ def cmd_fly(
         msg = "fly needs a mission: --hover (the only one so far)"
         raise ConfigError(msg)
     cfg = load_config(config_path, overrides)
-    if not sim and (mk_port is None or laser_port is None):
-        msg = "fly needs --mk-port and --laser-port (or --sim for the simulator)"
-        raise ConfigError(msg)
+    if not sim:  # the ports: the options, else the config's (mk.port, laser.port)
+        mk_port = mk_port or cfg.mk.port
+        laser_port = laser_port or cfg.laser.port
     for name, value in (("--height", height_m), ("--duration", duration_s)):
         if value is not None and not (value > 0 and value < 1e6):
             msg = f"{name} must be a positive number, got {value}"
@@ -160,9 +161,12 @@ def cmd_fly(
         msg = f"--height {height_m:g} m is above safety.max_height_m {cfg.safety.max_height_m:g}"
         raise ConfigError(msg)
     if not sim:
-        for flag, port in (("--mk-port", mk_port), ("--laser-port", laser_port)):
+        for what, flag, port in (
+            ("FC", "mk.port or --mk-port", mk_port),
+            ("laser", "laser.port or --laser-port", laser_port),
+        ):
             if port is not None and not Path(port).exists():
-                msg = f"{flag} {port}: no such device"
+                msg = f"{what} port {port} ({flag}): no such device"
                 raise PortNotFoundError(msg)
     folder = _folder(cfg, log_dir)
     code, reason, summary = asyncio.run(
@@ -182,7 +186,10 @@ def cmd_fly(
     if as_json:
         print(
             json.dumps(
-                {"log_dir": str(folder), "reason": reason, "truth_precision": truth, **summary}
+                json_safe(
+                    {"log_dir": str(folder), "reason": reason, "truth_precision": truth, **summary}
+                ),
+                allow_nan=False,
             )
         )
     else:

@@ -8,7 +8,10 @@ to stderr.
 
 from __future__ import annotations
 
+import asyncio
 import math
+import os
+import sys
 from typing import TYPE_CHECKING
 
 from mkflight.config import Config, load_config
@@ -28,6 +31,7 @@ def cmd_sim(
     truth: str | None,
     faults: list[str],
     duration_s: float | None,
+    exit_on_eof: bool = False,
 ) -> int:
     """Run the live simulator (:class:`~mkflight.sim.live.LiveSim`) until stopped.
 
@@ -52,6 +56,7 @@ def cmd_sim(
             truth=truth,
             faults=schedule,
             duration_s=duration_s,
+            exit_on_eof=exit_on_eof,
         )
     )
 
@@ -65,12 +70,19 @@ async def _serve(
     truth: str | None,
     faults: list[Fault],
     duration_s: float | None,
+    exit_on_eof: bool,
 ) -> int:
-    """Start, print the two paths, serve until a signal or the duration, stop."""
+    """Start, print the two paths, serve until a signal, the duration or the stdin's end.
+
+    ``exit_on_eof``: the end of standard input means the parent that started us with a
+    pipe has gone.
+    """
     from mkflight.commands.interrupt import stop_on_signals
     from mkflight.sim.live import LiveSim
 
     stop = stop_on_signals()
+    if exit_on_eof:
+        _stop_on_stdin_eof(stop)
     sim = LiveSim(
         cfg,
         seed=seed,
@@ -88,3 +100,20 @@ async def _serve(
     finally:
         await sim.stop()
     return 0
+
+
+def _stop_on_stdin_eof(stop: asyncio.Event) -> None:
+    """Set ``stop`` when standard input reaches its end (the writing parent exited)."""
+    loop = asyncio.get_running_loop()
+    fd = sys.stdin.fileno()
+
+    def readable() -> None:
+        try:
+            data = os.read(fd, 4096)
+        except OSError:
+            data = b""
+        if not data:
+            loop.remove_reader(fd)
+            stop.set()
+
+    loop.add_reader(fd, readable)

@@ -33,8 +33,7 @@ import sys
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, replace
-from datetime import UTC, datetime
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -44,8 +43,11 @@ from mkflight.clock import NS_PER_S, Clock, MonotonicClock
 from mkflight.config import Config
 from mkflight.control.phases import Phase, PhaseRequests
 from mkflight.errors import FlightError, LinkError, PreflightError
+from mkflight.flight.flight_logs import FlightLogs
 from mkflight.flight.laser_pipeline import LaserResult
+from mkflight.flight.links import open_laser, open_mk
 from mkflight.flight.matcher_worker import MatcherError, MatcherWorker
+from mkflight.flight.monitor import HoldMonitor
 from mkflight.flight.preflight import (
     PreflightReport,
     check_fc,
@@ -56,22 +58,12 @@ from mkflight.flight.preflight import (
 from mkflight.flight.sdnotify import Notifier
 from mkflight.flight.stats import StepStats
 from mkflight.flight.step import FlightCore, ImuStepOutput, PilotSticks
-from mkflight.io.serial import open_serial
-from mkflight.io.stream import ByteStream
-from mkflight.logs.events import EventsWriter
-from mkflight.logs.flight_json import FlightInfo, new_flight_info, with_summary, write_flight_json
-from mkflight.logs.raw import RawRecorder
-from mkflight.logs.table3 import Table3Writer
-from mkflight.logs.table4 import Table4Writer
-from mkflight.mk.link import LinkSettings, MkLink
+from mkflight.flight.summary import flight_summary
+from mkflight.mk.link import MkLink
 from mkflight.mk.messages import ExternControl
-from mkflight.mk.units import MkCalibration
 from mkflight.msgs import Command, ImuSample
 from mkflight.safety.failsafe import StopRequest
 from mkflight.urg.driver import UrgDriver
-from mkflight.urg.driver_types import settings_from_config
-
-URG_BAUDRATE = 115200  # USB CDC-ACM ignores it (scip2.md §1)
 
 log = structlog.get_logger("mkflight.flight")
 
@@ -81,6 +73,9 @@ WATCH_PERIOD_S = 0.05
 STATUS_PERIOD_S = 0.5
 ATTITUDE_HISTORY = 64  # DebugOut samples kept for the attitude at a scan's time (~3 s)
 HANDSHAKE_CONFIRMS = 3  # confirms of neutral frames needed before take-off
+SETTLE_S = 3.0  # HOLD precision counts from this long after HOLD begins (as sim hover)
+WORKER_START_TIMEOUT_S = 60.0  # spawning the matcher (numpy, scipy) on a slow board
+FC_REOPEN_S = 3.0  # a vanished FC port: this long to come back, only to hand control back
 
 
 class StopDeadlineError(FlightError):
@@ -147,94 +142,67 @@ class FlightApp:
         self._attitude: deque[tuple[int, float, float]] = deque(maxlen=ATTITUDE_HISTORY)
         self._last_cmd_write_ns = 0
         self._handshake_confirms0: int | None = None
-        self._start_ns = 0
-        self._info: FlightInfo | None = None
-        self._files: list[Any] = []
-        self._t3: Table3Writer | None = None
-        self._t4: Table4Writer | None = None
-        self._events: EventsWriter | None = None
-        self._mk_raw: RawRecorder | None = None
-        self._laser_raw: RawRecorder | None = None
-        self._cpu0_s = 0.0
-        self._wall0_s = 0.0
+        self.start_ns = 0
+        self.logs: FlightLogs | None = None
+        self.monitor = HoldMonitor()
+        self.cpu0_s = 0.0
+        self.wall0_s = 0.0
         self._last_out: ImuStepOutput | None = None
-        self._matcher_cpu_s = 0.0
-        self._matches = 0
+        self.matches = 0
         self._battery_v = math.nan
-        self._hold_cpu: tuple[float, float, float] | None = None
-        self._hold_end: tuple[float, float, float] | None = None
+        self._preflight_task: asyncio.Task[PreflightReport] | None = None
+        self._status_tty = opts.status_tty
 
     # ----- the way in ---------------------------------------------------------------------
 
     def _open_logs(self) -> None:
         """Create the flight folder and its files (the 'log dir writable' check)."""
-        folder = self.opts.log_dir
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-            if any(p for p in folder.iterdir() if p.name != "truth.txt"):
-                msg = f"{folder} is not empty: a flight folder is never overwritten"
-                raise PreflightError(check="log dir", detail=msg)
-            self._info = new_flight_info(datetime.now(UTC), self.cfg)
-            write_flight_json(folder, self._info)
-            self._t3, self._t4 = Table3Writer(folder), Table4Writer(folder)
-            self._events = EventsWriter(folder)
-            self._mk_raw = RawRecorder(folder / "mk.raw", self.opts.mk_port, clock=self.clock)
-            self._laser_raw = RawRecorder(
-                folder / "laser.raw", self.opts.laser_port, clock=self.clock
-            )
-        except OSError as err:
-            raise PreflightError(
-                check="log dir", detail=f"{folder}: {err.strerror or err}"
-            ) from err
+        self.logs = FlightLogs(
+            self.opts.log_dir,
+            self.cfg,
+            mk_port=self.opts.mk_port,
+            laser_port=self.opts.laser_port,
+            clock=self.clock,
+            on_error=self._log_failed,
+        )
+
+    def _log_failed(self, err: OSError) -> None:
+        """A log write failed (disk full, read-only): logging stops, the vehicle lands."""
+        log.error("log write failed: landing", error=str(err))
+        self.request_stop(StopRequest.CRASH, f"log write failed: {err}")
+
+    def _mark(self, which: str, kind: str, text: str) -> None:
+        """An 'o' (opened) or 'c' (lost) record in a port's raw recording."""
+        if self.logs is not None:
+            rec = self.logs.mk_raw if which == "mk" else self.logs.laser_raw
+            rec.mark(kind, self.clock.now_ns(), text)
 
     def _mk_tap(self, direction: str, t_ns: int, data: bytes) -> None:
         """Record the MK port's bytes; note when an ExternControl ('#bb...') is written."""
-        if self._mk_raw is not None:
-            self._mk_raw(direction, t_ns, data)
+        if self.logs is not None:
+            self.logs.mk_raw(direction, t_ns, data)
         if direction == "w" and data[1:3] == b"bb":
             self._last_cmd_write_ns = t_ns
         elif direction == "w" and data[2:3] == b"d":
             self.stats.on_resubscribe()  # the FC answers at once and restarts its period
 
     def _laser_tap(self, direction: str, t_ns: int, data: bytes) -> None:
-        if self._laser_raw is not None:
-            self._laser_raw(direction, t_ns, data)
+        if self.logs is not None:
+            self.logs.laser_raw(direction, t_ns, data)
 
     async def _open_links(self) -> None:
-        cfg = self.cfg
-        try:
-            mk_stream = await open_serial(self.opts.mk_port, cfg.mk.baudrate)
-        except LinkError as err:
-            raise PreflightError(check="FC port", detail=str(err)) from err
-        if self._mk_raw is not None:
-            self._mk_raw.mark("o", self.clock.now_ns(), self.opts.mk_port)
-        self.link = MkLink(
-            mk_stream,
-            LinkSettings.from_config(cfg),
-            MkCalibration.from_config(cfg.mk),
-            self.clock,
-            tap=self._mk_tap,
+        """Both ports as links (pre-flight checks 'FC port' and 'laser port')."""
+        clock = self.clock
+        self.link = await open_mk(
+            self.opts.mk_port, self.cfg, clock, self._mk_tap, lambda p: self._mark("mk", "o", p)
         )
-        self.link.start()
-        try:
-            laser_stream = await open_serial(self.opts.laser_port, URG_BAUDRATE)
-        except LinkError as err:
-            raise PreflightError(check="laser port", detail=str(err)) from err
-        if self._laser_raw is not None:
-            self._laser_raw.mark("o", self.clock.now_ns(), self.opts.laser_port)
-        laser_port = self.opts.laser_port
-
-        async def reopen_laser() -> ByteStream:
-            return await open_serial(laser_port, URG_BAUDRATE)
-
-        self.driver = UrgDriver(
-            laser_stream,
-            settings_from_config(cfg.laser),
-            self.clock,
-            reopen=reopen_laser,
-            tap=self._laser_tap,
+        self.driver = await open_laser(
+            self.opts.laser_port,
+            self.cfg,
+            clock,
+            self._laser_tap,
+            lambda p: self._mark("laser", "o", p),
         )
-        self.driver.start()
 
     async def run_preflight(self) -> PreflightReport:
         """Open the logs and the links, start the matcher and run every check.
@@ -248,8 +216,13 @@ class FlightApp:
         assert self.driver is not None
         version, samples = await check_fc(self.link, self.cfg.safety.warn_voltage_v)
         info, scans = await check_laser(self.driver)
-        await self.worker.start()
+        try:
+            async with asyncio.timeout(WORKER_START_TIMEOUT_S):
+                await self.worker.start()
+        except (MatcherError, TimeoutError) as err:
+            raise PreflightError(check="scan match", detail=f"matcher process: {err!r}") from err
         last = samples[-1]
+        self._attitude.append((last.t_ns, last.pitch_rad, last.roll_rad))
         first = await check_hat_and_match(self.worker, scans, last.pitch_rad, last.roll_rad)
         report = PreflightReport(
             fc_version=version.text,
@@ -265,9 +238,8 @@ class FlightApp:
             first_result=first,
         )
         self._pending.append(first)
-        if self._info is not None:
-            self._info = replace(self._info, fc_version=version.text)
-            write_flight_json(self.opts.log_dir, self._info)
+        if self.logs is not None:
+            self.logs.set_fc_version(version.text)
         self._event(self.clock.now_ns(), "preflight", **report.as_dict())
         self.preflight = report
         return report
@@ -275,15 +247,20 @@ class FlightApp:
     # ----- the flight ---------------------------------------------------------------------
 
     def request_stop(self, request: StopRequest, reason: str) -> None:
-        """Ask for the soft landing (the first request wins; later ones are only logged)."""
+        """Ask for the soft landing (the first request wins; later ones are only logged).
+
+        Before READY there is nothing to land: the pre-flight is cancelled.
+        """
         now = self.clock.now_ns()
-        self._event(now, "stop", request=request.value, reason=reason)
-        if self.stop_request is None:
+        if self.stop_request is None:  # latched before anything that could fail (a full disk)
             self.stop_request, self.stop_reason, self.stop_at_ns = request, reason, now
+            if self._preflight_task is not None and not self._preflight_task.done():
+                self._preflight_task.cancel()
+        self._event(now, "stop", request=request.value, reason=reason)
 
     def _event(self, t_ns: int, event: str, **fields: Any) -> None:
-        if self._events is not None and not self._events.closed:
-            self._events.write(t_ns, event, **fields)
+        if self.logs is not None:
+            self.logs.event(t_ns, event, **fields)
 
     def _attitude_at(self, t_ns: int) -> tuple[float, float]:
         """Pitch and roll of the DebugOut sample nearest ``t_ns`` (NaN if none)."""
@@ -293,14 +270,14 @@ class FlightApp:
         return best[1], best[2]
 
     def _apply_laser_results(self, now_ns: int) -> None:
-        core, t3 = self.core, self._t3
+        core = self.core
         while self._pending:
             r = self._pending.popleft()
             row = core.laser_step(
                 r.pose, r.height_m, t_ns=r.scan_t_ns, degenerate=r.degenerate, arrival_ns=now_ns
             )
-            if row is not None and t3 is not None:
-                t3.write_row(row)
+            if row is not None and self.logs is not None:
+                self.logs.row3(row)
             self._event(
                 r.scan_t_ns,
                 "scan",
@@ -361,74 +338,55 @@ class FlightApp:
         self.notifier.watchdog()
         self._log_step(sample, out)
         self.stats.on_step(sample.t_ns, written, self.clock.now_ns())
-        self._note_hold(out.phase)
+        self.monitor.on_step(
+            sample.t_ns,
+            out.phase,
+            out.estimate,
+            self.core.active_setpoint,
+            stopping=self.stop_request is not None,
+        )
         self._last_out = out
         if self.on_step is not None:
             self.on_step(out)
         return out
 
-    def _note_hold(self, phase: Phase) -> None:
-        """CPU clocks at the start and end of HOLD: the steady-hover CPU (SPEC §9)."""
-        if phase is Phase.HOLD and self._hold_cpu is None:
-            self._hold_cpu = (time.process_time(), time.perf_counter(), self._matcher_cpu_s)
-        elif phase is not Phase.HOLD and self._hold_cpu is not None and self._hold_end is None:
-            self._hold_end = (time.process_time(), time.perf_counter(), self._matcher_cpu_s)
-
-    def _hold_cpu_percent(self) -> dict[str, float] | None:
-        """Daemon and matcher CPU during HOLD, % of one core (None without a HOLD)."""
-        if self._hold_cpu is None:
-            return None
-        end = self._hold_end or (time.process_time(), time.perf_counter(), self._matcher_cpu_s)
-        wall_s = end[1] - self._hold_cpu[1]
-        if wall_s <= 0:
-            return None
-        return {
-            "daemon": round(100.0 * (end[0] - self._hold_cpu[0]) / wall_s, 2),
-            "matcher": round(100.0 * (end[2] - self._hold_cpu[2]) / wall_s, 2),
-            "hold_s": round(wall_s, 1),
-        }
-
     def _log_step(self, sample: ImuSample, out: ImuStepOutput) -> None:
-        if self._t4 is not None:
-            self._t4.write_row(out.row)
-        sp = self.core.active_setpoint
-        est = out.estimate
-        self._event(
-            sample.t_ns,
-            "step",
-            x_m=round(est.x_m, 4),
-            y_m=round(est.y_m, 4),
-            sp_x_m=None if sp is None else round(sp.x_m, 4),
-            sp_y_m=None if sp is None else round(sp.y_m, 4),
-            sp_height_m=None if sp is None else round(sp.height_m, 4),
-            height_m=round(est.height_m, 4),
-            vz_up_mps=round(est.vz_up_mps, 4),
-            gas_counts=out.command.gas_counts,
-            battery_v=round(sample.battery_v, 2),
-            phase=out.phase.name,
-            action=out.action.name,
-            latency_ms=round(self.stats.last_latency_ms(), 3),
-        )
-        for e in out.failsafe_events:
-            self._event(
-                e.t_ns, "failsafe", action=e.action.name, cause=getattr(e.cause, "value", "")
-            )
-        for pe in out.phase_events:
-            self._event(pe.t_ns, "phase", to=pe.to_phase.name, reason=pe.reason)
+        if self.logs is not None:
+            sp = self.core.active_setpoint
+            self.logs.step(sample, out, sp, self.stats.last_latency_ms())
 
     async def _mk_task(self) -> None:
         """The 50 ms step, on every DebugOut, until the phase machine releases."""
-        assert self.link is not None
-        timeout_s = self.cfg.safety.mk_release_s + 1.0
+        link = self.link
+        assert link is not None
+        # The link hands control back after mk_release_s without DebugOut; a little later
+        # the flight ends (well inside systemd's WatchdogSec = 2 s).
+        timeout_s = self.cfg.safety.mk_release_s + 0.3
+        link.subscribe()  # a fresh subscription: pre-flight may have outlasted the last one
         while True:
             try:
-                sample = await self.link.next_sample(timeout_s)
+                sample = await link.next_sample(timeout_s)
             except LinkError as err:
+                if link.error is not None:  # the port itself failed: try to hand back
+                    with contextlib.suppress(LinkError, TimeoutError):
+                        async with asyncio.timeout(FC_REOPEN_S):
+                            await link.reopen(max_wait_s=FC_REOPEN_S)  # releases first
                 msg = f"FlightCtrl lost: {err}; it hands control to the pilot's sticks"
                 raise FlightError(msg) from err
+            if sample.t_ns < self.start_ns:
+                continue  # older than READY: the FC may have stopped streaming since
+            self._check_deadline()
             out = self._step(sample)
             if out.phase is Phase.RELEASED:
                 return
+
+    def _check_deadline(self) -> None:
+        """A stop request not landed in time: end the flight (the shutdown releases)."""
+        deadline_s = self.opts.stop_deadline_s
+        now = self.clock.now_ns()
+        if self.stop_at_ns is not None and (now - self.stop_at_ns) / NS_PER_S > deadline_s:
+            msg = f"the landing did not end within {deadline_s:g} s of the stop request"
+            raise StopDeadlineError(msg)
 
     async def _laser_task(self) -> None:
         """Scans to the matcher process; results queued for the MK task."""
@@ -442,13 +400,10 @@ class FlightApp:
                     self._event(self.clock.now_ns(), "laser_silent", error=str(err))
                     continue  # and the step's laser staleness check lands the vehicle
                 self._event(self.clock.now_ns(), "laser_lost", error=str(err))
-                if self._laser_raw is not None:
-                    self._laser_raw.mark("c", self.clock.now_ns(), str(err))
+                self._mark("laser", "c", str(err))
                 log.warning("laser lost", error=str(err))
                 await self.driver.reopen(max_wait_s=30.0)
                 self._event(self.clock.now_ns(), "laser_reopened")
-                if self._laser_raw is not None:
-                    self._laser_raw.mark("o", self.clock.now_ns(), self.opts.laser_port)
                 continue
             pitch, roll = self._attitude_at(scan.t_ns)
             try:
@@ -456,8 +411,8 @@ class FlightApp:
             except MatcherError as err:
                 msg = f"scan matcher failed: {err}"
                 raise FlightError(msg) from err
-            self._matcher_cpu_s += result.compute_s
-            self._matches += 1
+            self.monitor.matcher_cpu_s += result.compute_s
+            self.matches += 1
             self._pending.append(result)
 
     async def _watchdog_task(self) -> None:
@@ -466,14 +421,11 @@ class FlightApp:
         while True:
             await asyncio.sleep(WATCH_PERIOD_S)
             now = self.clock.now_ns()
-            elapsed_s = (now - self._start_ns) / NS_PER_S
+            elapsed_s = (now - self.start_ns) / NS_PER_S
             duration_s = self.opts.duration_s
             if duration_s is not None and elapsed_s >= duration_s and self.stop_request is None:
                 self.request_stop(StopRequest.DURATION, f"--duration {duration_s:g} s")
-            deadline_s = self.opts.stop_deadline_s
-            if self.stop_at_ns is not None and (now - self.stop_at_ns) / NS_PER_S > deadline_s:
-                msg = f"the landing did not end within {deadline_s:g} s of the stop request"
-                raise StopDeadlineError(msg)
+            self._check_deadline()
             if time.monotonic() >= next_status:
                 next_status = time.monotonic() + STATUS_PERIOD_S
                 self._status()
@@ -494,38 +446,57 @@ class FlightApp:
     def _status(self) -> None:
         line = self.status_line()
         self.notifier.status(line)
-        if self.opts.status_tty:
-            sys.stderr.write("\r" + line + "\x1b[K")
-            sys.stderr.flush()
+        if self._status_tty:
+            try:
+                sys.stderr.write("\r" + line + "\x1b[K")
+                sys.stderr.flush()
+            except (OSError, ValueError):  # the terminal went away (ssh dropped)
+                self._status_tty = False
 
     async def fly(self) -> FlightReport:
         """Pre-flight, READY, the tasks, and the single way out (module docstring)."""
         loop = asyncio.get_running_loop()
-        self._cpu0_s, self._wall0_s = time.process_time(), time.perf_counter()
+        self.cpu0_s, self.wall0_s = time.process_time(), time.perf_counter()
         for sig, req in (
             (signal.SIGINT, StopRequest.SIGINT),
             (signal.SIGTERM, StopRequest.SIGTERM),
+            (signal.SIGHUP, StopRequest.SIGTERM),  # the terminal or ssh went away: land
         ):
             with contextlib.suppress(NotImplementedError, RuntimeError):
-                loop.add_signal_handler(sig, self.request_stop, req, sig.name)
+                loop.add_signal_handler(sig, self._on_signal, req, sig.name)
         error: BaseException | None = None
         try:
-            await self.run_preflight()
-            self.notifier.ready()
-            self._start_ns = self.clock.now_ns()
-            error = await self._run_tasks()
-        except PreflightError as err:
+            self._preflight_task = asyncio.create_task(self.run_preflight(), name="preflight")
+            try:
+                await self._preflight_task
+            except asyncio.CancelledError:
+                if self.stop_request is None:
+                    raise
+                error = None  # stopped before take-off: nothing flew
+            else:
+                self.notifier.ready()
+                self.start_ns = self.clock.now_ns()
+                error = await self._run_tasks()
+        except Exception as err:  # every failure leaves through the shutdown
             error = err
         finally:
-            for sig in (signal.SIGINT, signal.SIGTERM):
+            summary = await self._shutdown(error)  # the signal handlers stay until released
+            for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
                 with contextlib.suppress(NotImplementedError, RuntimeError):
                     loop.remove_signal_handler(sig)
-            summary = await self._shutdown(error)
         if isinstance(error, PreflightError | FlightError):
             return FlightReport(1, str(error), summary)
         if error is not None:
             return FlightReport(1, f"{type(error).__name__}: {error}", summary)
+        if self.logs is not None and self.logs.error is not None:  # landed, but logs are lost
+            return FlightReport(1, summary["end_reason"], summary)
         return FlightReport(0, summary["end_reason"], summary)
+
+    def _on_signal(self, request: StopRequest, name: str) -> None:
+        """SIGINT/SIGTERM/SIGHUP: land. After SIGHUP the terminal is gone: no status line."""
+        if name == "SIGHUP":
+            self._status_tty = False
+        self.request_stop(request, name)
 
     async def _run_tasks(self) -> BaseException | None:
         """Run the three tasks; a crash of laser/watchdog lands; the MK task's end ends all."""
@@ -568,88 +539,21 @@ class FlightApp:
     async def _shutdown(self, error: BaseException | None) -> dict[str, Any]:
         """Release, close the ports and the matcher, write the summary, close the logs."""
         self.notifier.stopping()
-        if self.opts.status_tty:
-            sys.stderr.write("\n")
         released = False
         if self.link is not None:
+            before = self.link.stats.frames_written
             with contextlib.suppress(Exception):
                 await self.link.close(release=True)
-            released = True
+            released = self.link.stats.frames_written > before  # Config = 0 frames went out
+        if self._status_tty:
+            with contextlib.suppress(OSError, ValueError):
+                sys.stderr.write("\n")
         if self.driver is not None:
             with contextlib.suppress(Exception):
                 await self.driver.close()
         with contextlib.suppress(Exception):
             await self.worker.close()
-        summary = self._summary(error, released)
-        self._event(self.clock.now_ns(), "end", exit_reason=summary["end_reason"])
-        for closer in (self._t3, self._t4, self._events, self._mk_raw, self._laser_raw):
-            if closer is not None:
-                with contextlib.suppress(Exception):
-                    closer.close()
-        if self._info is not None:
-            with contextlib.suppress(OSError):
-                write_flight_json(self.opts.log_dir, with_summary(self._info, summary))
+        summary = flight_summary(self, error, released)
+        if self.logs is not None:
+            self.logs.close(self.clock.now_ns(), summary)
         return summary
-
-    def _end_reason(self) -> str:
-        """Why a flight without error ended: the stop request, else the failsafe that landed."""
-        if self.stop_reason:
-            return self.stop_reason
-        events = self.core.counters.failsafe_events
-        return f"failsafe: {events[0]}" if events else f"phase {self.core.phase.name}"
-
-    def _summary(self, error: BaseException | None, released: bool) -> dict[str, Any]:
-        wall_s = time.perf_counter() - self._wall0_s
-        cpu_s = time.process_time() - self._cpu0_s
-        counters = self.core.counters
-        out: dict[str, Any] = {
-            "end_reason": str(error) if error is not None else self._end_reason(),
-            "exit_code": 0 if error is None else 1,
-            "duration_s": round(wall_s, 3),
-            "flight_s": round((self.clock.now_ns() - self._start_ns) / NS_PER_S, 3)
-            if self._start_ns
-            else 0.0,
-            "final_phase": self.core.phase.name,
-            "released": released,
-            "failsafes": list(counters.failsafe_events),
-            "timing": self.stats.summary(),
-            "cpu_percent_of_one_core": round(100.0 * cpu_s / wall_s, 2) if wall_s > 0 else None,
-            "cpu_percent_in_hold": self._hold_cpu_percent(),
-            "matcher": {
-                "scans": self._matches,
-                "cpu_ms_per_scan": round(1000 * self._matcher_cpu_s / self._matches, 3)
-                if self._matches
-                else None,
-            },
-        }
-        if self.preflight is not None:
-            out["preflight"] = self.preflight.as_dict()
-        if self.link is not None:
-            out["mk_link"] = self.link.stats.summary()
-        if self.driver is not None:
-            out["laser_link"] = _plain(self.driver.stats)
-        for name, rec in (("mk_raw", self._mk_raw), ("laser_raw", self._laser_raw)):
-            if rec is not None:
-                out[name] = {
-                    "records": rec.records,
-                    "bytes_read": rec.bytes_read,
-                    "bytes_written": rec.bytes_written,
-                    "dropped": rec.dropped,
-                    "error": rec.error and str(rec.error),
-                }
-        return out
-
-
-def _plain(stats: object) -> dict[str, Any]:
-    """A stats dataclass's plain counters (ints and floats, nested one level)."""
-    result: dict[str, Any] = {}
-    for name in getattr(stats, "__slots__", ()) or vars(stats):
-        value = getattr(stats, name)
-        if isinstance(value, int | float | str):
-            result[name] = value
-        elif hasattr(value, "__slots__") or hasattr(value, "__dict__"):
-            for sub in getattr(value, "__slots__", ()) or vars(value):
-                v = getattr(value, sub)
-                if isinstance(v, int | float):
-                    result[f"{name}_{sub}"] = v
-    return result

@@ -35,6 +35,8 @@ import asyncio
 import math
 import multiprocessing
 import os
+import signal
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -64,9 +66,28 @@ class MatcherError(RuntimeError):
     """The scan matcher cannot answer: its process died, or the matcher was closed/not started."""
 
 
-def _init_worker(cfg: Config, nice: int) -> None:
-    """Worker initializer: lower the priority, build the pipeline (runs in the worker)."""
+PARENT_POLL_S = 1.0
+"""How often the worker checks that the daemon still exists."""
+
+
+def _watch_parent(parent_pid: int) -> None:
+    """Exit when the daemon is gone (killed with SIGKILL: nobody will shut us down)."""
+    while os.getppid() == parent_pid:
+        time.sleep(PARENT_POLL_S)
+    os._exit(0)
+
+
+def _init_worker(cfg: Config, nice: int, parent_pid: int) -> None:
+    """Worker initializer: lower the priority, build the pipeline (runs in the worker).
+
+    A Ctrl-C on the terminal reaches the whole process group, and a dropped ssh session
+    sends SIGHUP: the worker ignores both, so the daemon's soft landing keeps its poses
+    (the daemon ends the worker itself when it has landed).
+    """
     global _pipeline  # the worker process's one pipeline
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True).start()
     if nice > 0:
         os.nice(nice)
     _pipeline = LaserPipeline(cfg)
@@ -174,7 +195,7 @@ class MatcherWorker:
                 max_workers=1,
                 mp_context=multiprocessing.get_context("spawn"),
                 initializer=_init_worker,
-                initargs=(self.cfg, self.nice),
+                initargs=(self.cfg, self.nice, os.getpid()),
             )
             loop = asyncio.get_running_loop()
             try:

@@ -1,7 +1,9 @@
 """``fly --sim``: the simulated vehicle in its own process, on pseudo-terminals (SPEC §8).
 
-The child is ``python -m mkflight sim`` with the flight's config: it prints ``mk PATH``
-and ``laser PATH`` and serves both until it gets SIGTERM. The daemon then opens those
+The child is ``python -m mkflight sim --exit-on-eof`` with the flight's config: it prints
+``mk PATH`` and ``laser PATH`` and serves both until it gets SIGTERM, or until its
+standard input (a pipe from the daemon, never written) ends: a daemon killed with
+SIGKILL leaves no simulator behind. The daemon then opens those
 paths exactly as it opens real ports, so ``--sim`` flies the hardware code path; the child
 writes the ground truth (``truth.txt``) into the flight folder.
 """
@@ -57,7 +59,7 @@ async def start_sim(
     Raises:
         FlightError: the child exited or printed nothing usable within the timeout.
     """
-    args = [sys.executable, "-m", "mkflight", "sim", "--truth", str(truth)]
+    args = [sys.executable, "-m", "mkflight", "sim", "--truth", str(truth), "--exit-on-eof"]
     if config_path is not None:
         args += ["--config", config_path]
     for item in overrides:
@@ -68,7 +70,7 @@ async def start_sim(
         args += ["--fault", fault]
     proc = await asyncio.create_subprocess_exec(
         *args,
-        stdin=asyncio.subprocess.DEVNULL,
+        stdin=asyncio.subprocess.PIPE,  # never written: its end tells the child we are gone
         stdout=asyncio.subprocess.PIPE,
         start_new_session=True,  # a Ctrl-C on the terminal reaches the daemon, not the sim
     )
@@ -85,6 +87,9 @@ async def start_sim(
                     paths[key] = value
     except TimeoutError:
         pass
+    except BaseException:  # cancelled while starting: the child must not outlive us
+        await SimProcess(proc, "", "").stop()
+        raise
     if len(paths) < 2:
         await SimProcess(proc, "", "").stop()
         msg = f"the simulator did not start (exit code {proc.returncode}); see its stderr above"

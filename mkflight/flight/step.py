@@ -61,6 +61,8 @@ from mkflight.safety.failsafe import (
 #: this fraction of the hover feed-forward gas, for at most BLIND_DESCENT_S, then the pilot.
 BLIND_DESCENT_GAS_FRACTION = 0.85
 BLIND_DESCENT_S = 5.0
+TOUCHDOWN_HEIGHT_M = 0.15
+"""Below this height in LAND a degenerate scan no longer raises the failsafe."""
 MAX_HOLD_OFFSET_M = 1.0
 """The largest HOLD set-point offset :meth:`FlightCore.set_hold_offset` accepts."""
 
@@ -228,7 +230,15 @@ class FlightCore:
                 # Before take-off the laser's age is not a flight risk (it blocks take-off
                 # through the pre-flight checks instead).
                 laser_age_s=laser_age_s if flying else 0.0,
-                scan_degenerate=self._degenerate and flying,
+                # Touching down, the tilting scan plane meets the floor and the matcher may
+                # call the scene degenerate: the landing is under way, nothing to protect.
+                scan_degenerate=self._degenerate
+                and flying
+                and not (
+                    self.phase is Phase.LAND
+                    and math.isfinite(est.height_m)
+                    and est.height_m < TOUCHDOWN_HEIGHT_M
+                ),
                 mk_age_s=mk_age_s,
                 x_m=est.x_m,
                 y_m=est.y_m,

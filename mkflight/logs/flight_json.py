@@ -64,14 +64,14 @@ def with_summary(info: FlightInfo, summary: dict[str, Any]) -> FlightInfo:
     return replace(info, summary=summary)
 
 
-def _finite(obj: Any) -> Any:
+def json_safe(obj: Any) -> Any:
     """Replace non-finite floats by None, recursively (strict JSON)."""
     if isinstance(obj, float):
         return obj if math.isfinite(obj) else None
     if isinstance(obj, dict):
-        return {str(k): _finite(v) for k, v in obj.items()}
+        return {str(k): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
-        return [_finite(v) for v in obj]
+        return [json_safe(v) for v in obj]
     return obj
 
 
@@ -83,7 +83,7 @@ def write_flight_json(folder: str | Path, info: FlightInfo) -> Path:
     """
     path = Path(folder) / FILE_NAME
     tmp = path.with_name(FILE_NAME + ".tmp")
-    data = {key: _finite(getattr(info, key)) for key in _KEYS}
+    data = {key: json_safe(getattr(info, key)) for key in _KEYS}
     text = json.dumps(data, indent=2, allow_nan=False) + "\n"
     with tmp.open("w", encoding="utf-8") as f:
         f.write(text)

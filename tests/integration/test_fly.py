@@ -321,9 +321,9 @@ def test_usage_errors(tmp_path: Path) -> None:
     def run(*args: str) -> subprocess.CompletedProcess[str]:
         return subprocess.run([*MKFLIGHT, *args], capture_output=True, text=True, check=False)
 
-    proc = run("fly", "--hover")
-    assert proc.returncode == 2
-    assert "--mk-port" in proc.stderr
+    proc = run("fly", "--hover", "--set", f"mk.port={tmp_path / 'fc'}")
+    assert proc.returncode == 2  # the config's port does not exist
+    assert "mk.port or --mk-port" in proc.stderr
     proc = run("fly", "--sim")
     assert proc.returncode == 2
     assert "--hover" in proc.stderr

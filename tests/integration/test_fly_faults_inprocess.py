@@ -131,3 +131,42 @@ async def test_a_landing_that_overruns_its_deadline_is_released(tmp_path: Path) 
     assert any(e.event == "stop" and e.fields.get("request") == "sigterm" for e in events)
     assert any(e.event == "stop_deadline" for e in events)
     assert int(_commands(folder)[-1].config) == 0
+
+
+async def test_a_full_disk_mid_flight_lands_softly(tmp_path: Path) -> None:
+    """ENOSPC on the tables and events in HOLD: logging stops, the vehicle lands (SPEC §5),
+    every command stays in limits, and the exit (1) names the log failure."""
+    cfg = Config()
+    folder = tmp_path / "flight"
+    folder.mkdir()
+    sim = LiveSim(cfg, seed=5, truth_path=str(folder / "truth.txt"), truth_origin_ns=0)
+    mk, laser = await sim.start()
+    hold_steps = 0
+    app: FlightApp | None = None
+
+    def full_disk(*_: object, **__: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    def on_step(out: ImuStepOutput) -> None:
+        nonlocal hold_steps
+        hold_steps += out.phase is Phase.HOLD
+        if hold_steps == 30 and app is not None and app.logs is not None:
+            app.logs.t4.write_row = full_disk  # type: ignore[method-assign]
+            app.logs.events.write = full_disk  # type: ignore[method-assign]
+
+    try:
+        app = FlightApp(
+            cfg,
+            FlightOptions(mk_port=mk, laser_port=laser, log_dir=folder, duration_s=40.0),
+            on_step=on_step,
+        )
+        report = await app.fly()
+    finally:
+        await sim.stop()
+    assert report.exit_code == 1, report.reason  # landed, but the logs are incomplete
+    assert report.reason.startswith("log write failed")
+    assert report.summary["final_phase"] == "RELEASED"
+    assert "No space left" in str(report.summary["log_error"])
+    for c in _commands(folder):
+        assert 0 <= int(c.gas) <= GAS_MAX
+    assert float((folder / "truth.txt").read_text().splitlines()[-1].split()[3]) < 0.05

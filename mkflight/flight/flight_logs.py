@@ -1,0 +1,163 @@
+"""The flight folder's writers for the daemon (SPEC §6), and what a full disk does to them.
+
+One object owns them all: TABLE III and IV, ``events.jsonl``, ``flight.json`` and the raw
+recordings of both ports (:mod:`mkflight.logs.raw`). Logging must never end a flight
+badly: the first ``OSError`` (disk full, a read-only folder) stops every further write to
+the tables and events and is handed to ``on_error`` once, which asks for a soft landing;
+the raw recorders stop on their own (they count what they drop).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable
+from dataclasses import replace
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, TypeVar
+
+from mkflight.clock import Clock
+from mkflight.config import Config
+from mkflight.control.controller import Setpoint
+from mkflight.errors import PreflightError
+from mkflight.flight.step import ImuStepOutput
+from mkflight.logs.events import EventsWriter
+from mkflight.logs.flight_json import FlightInfo, new_flight_info, with_summary, write_flight_json
+from mkflight.logs.raw import RawRecorder
+from mkflight.logs.table3 import Table3Row, Table3Writer
+from mkflight.logs.table4 import Table4Writer
+from mkflight.msgs import ImuSample
+
+_C = TypeVar("_C")
+TRUTH_FILE = "truth.txt"  # a simulator may have started its truth log in the folder
+
+
+class FlightLogs:
+    """Creates a flight folder's files; writes rows and events; closes with the summary."""
+
+    def __init__(
+        self,
+        folder: Path,
+        cfg: Config,
+        *,
+        mk_port: str,
+        laser_port: str,
+        clock: Clock,
+        on_error: Callable[[OSError], None],
+    ) -> None:
+        """Create the folder's files (the pre-flight check 'log dir').
+
+        Raises:
+            PreflightError: the folder is not empty, or cannot be written.
+        """
+        self.folder = folder
+        self.on_error = on_error
+        self.error: OSError | None = None
+        self._closers: list[Any] = []
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            if any(p for p in folder.iterdir() if p.name != TRUTH_FILE):
+                msg = f"{folder} is not empty: a flight folder is never overwritten"
+                raise PreflightError(check="log dir", detail=msg)
+            self.info: FlightInfo = new_flight_info(datetime.now(UTC), cfg)
+            write_flight_json(folder, self.info)
+            self.t3 = self._keep(Table3Writer(folder))
+            self.t4 = self._keep(Table4Writer(folder))
+            self.events = self._keep(EventsWriter(folder))
+            self.mk_raw = self._keep(RawRecorder(folder / "mk.raw", mk_port, clock=clock))
+            self.laser_raw = self._keep(RawRecorder(folder / "laser.raw", laser_port, clock=clock))
+        except OSError as err:
+            self._close_all()
+            detail = f"{folder}: {err.strerror or err}"
+            raise PreflightError(check="log dir", detail=detail) from err
+
+    def _keep(self, closer: _C) -> _C:
+        self._closers.append(closer)
+        return closer
+
+    def _close_all(self) -> None:
+        for closer in self._closers:
+            with contextlib.suppress(OSError):
+                closer.close()
+
+    def _failed(self, err: OSError) -> None:
+        if self.error is None:
+            self.error = err
+            self.on_error(err)
+
+    def event(self, t_ns: int, event: str, **fields: Any) -> None:
+        """One ``events.jsonl`` line (nothing after a write error or after closing)."""
+        if self.error is not None or self.events.closed:
+            return
+        try:
+            self.events.write(t_ns, event, **fields)
+        except OSError as err:
+            self._failed(err)
+
+    def row3(self, row: Table3Row) -> None:
+        """One TABLE III row."""
+        if self.error is None:
+            try:
+                self.t3.write_row(row)
+            except OSError as err:
+                self._failed(err)
+
+    def step(
+        self, sample: ImuSample, out: ImuStepOutput, sp: Setpoint | None, latency_ms: float
+    ) -> None:
+        """A step's TABLE IV row, its ``step`` event, its failsafe and phase events."""
+        if self.error is None:
+            try:
+                self.t4.write_row(out.row)
+            except OSError as err:
+                self._failed(err)
+        est = out.estimate
+        self.event(
+            sample.t_ns,
+            "step",
+            x_m=round(est.x_m, 4),
+            y_m=round(est.y_m, 4),
+            sp_x_m=None if sp is None else round(sp.x_m, 4),
+            sp_y_m=None if sp is None else round(sp.y_m, 4),
+            sp_height_m=None if sp is None else round(sp.height_m, 4),
+            height_m=round(est.height_m, 4),
+            vz_up_mps=round(est.vz_up_mps, 4),
+            gas_counts=out.command.gas_counts,
+            battery_v=round(sample.battery_v, 2),
+            phase=out.phase.name,
+            action=out.action.name,
+            latency_ms=round(latency_ms, 3),
+        )
+        for e in out.failsafe_events:
+            cause = getattr(e.cause, "value", "")
+            self.event(e.t_ns, "failsafe", action=e.action.name, cause=cause)
+        for pe in out.phase_events:
+            self.event(pe.t_ns, "phase", to=pe.to_phase.name, reason=pe.reason)
+
+    def set_fc_version(self, text: str) -> None:
+        """Put the FC's version into ``flight.json`` (known after the pre-flight)."""
+        self.info = replace(self.info, fc_version=text)
+        try:
+            write_flight_json(self.folder, self.info)
+        except OSError as err:
+            self._failed(err)
+
+    def raw_summary(self) -> dict[str, Any]:
+        """The recorders' counters, for the summary."""
+        return {
+            name: {
+                "records": rec.records,
+                "bytes_read": rec.bytes_read,
+                "bytes_written": rec.bytes_written,
+                "dropped": rec.dropped,
+                "error": rec.error and str(rec.error),
+            }
+            for name, rec in (("mk_raw", self.mk_raw), ("laser_raw", self.laser_raw))
+        }
+
+    def close(self, t_ns: int, summary: dict[str, Any]) -> None:
+        """The ``end`` event, every file flushed and closed, ``flight.json``'s summary."""
+        self.event(t_ns, "end", exit_reason=summary.get("end_reason"))
+        self._close_all()
+        with contextlib.suppress(OSError):  # a full disk: the tables hold what was written
+            write_flight_json(self.folder, with_summary(self.info, summary))

@@ -1,0 +1,82 @@
+"""What the daemon measures of its own hover (SPEC §9): CPU in HOLD, the HOLD precision.
+
+Pure bookkeeping fed once per step by :mod:`mkflight.flight.app`:
+
+* **CPU in steady hover**: the process's CPU time and the matcher's (the worker reports
+  its compute time per scan) between the start and the end of HOLD, as % of one core;
+* **precision estimate**: the std of the estimate minus the set-point (x, y, height) in
+  HOLD, from :data:`SETTLE_S` after it began until a stop is requested (as ``sim hover``
+  and ``analyze precision`` count). It is the estimate's own view; the simulator's truth
+  gives the real one (``analyze precision --truth``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mkflight.clock import NS_PER_S
+from mkflight.control.controller import Setpoint
+from mkflight.control.phases import Phase
+from mkflight.msgs import Estimate
+
+SETTLE_S = 3.0
+
+_Clocks = tuple[float, float, float]  # process CPU s, wall s, matcher CPU s
+
+
+@dataclass(slots=True)
+class HoldMonitor:
+    """CPU and precision over HOLD (see the module docstring)."""
+
+    matcher_cpu_s: float = 0.0
+    _cpu_start: _Clocks | None = None
+    _cpu_end: _Clocks | None = None
+    _t0_ns: int | None = None
+    _errors: list[tuple[float, float, float]] = field(default_factory=list)
+
+    def _clocks(self) -> _Clocks:
+        return time.process_time(), time.perf_counter(), self.matcher_cpu_s
+
+    def on_step(
+        self, t_ns: int, phase: Phase, est: Estimate, sp: Setpoint | None, stopping: bool
+    ) -> None:
+        """One step's phase, estimate and set-point."""
+        if phase is Phase.HOLD and self._cpu_start is None:
+            self._cpu_start = self._clocks()
+        elif phase is not Phase.HOLD and self._cpu_start is not None and self._cpu_end is None:
+            self._cpu_end = self._clocks()
+        if phase is not Phase.HOLD or sp is None or not est.pose_valid:
+            return
+        if self._t0_ns is None:
+            self._t0_ns = t_ns
+        if (t_ns - self._t0_ns) / NS_PER_S >= SETTLE_S and not stopping:
+            self._errors.append((est.x_m - sp.x_m, est.y_m - sp.y_m, est.height_m - sp.height_m))
+
+    def cpu_percent(self) -> dict[str, float] | None:
+        """Daemon and matcher CPU during HOLD, % of one core (None without a HOLD)."""
+        if self._cpu_start is None:
+            return None
+        start, end = self._cpu_start, self._cpu_end or self._clocks()
+        wall_s = end[1] - start[1]
+        if wall_s <= 0:
+            return None
+        return {
+            "daemon": round(100.0 * (end[0] - start[0]) / wall_s, 2),
+            "matcher": round(100.0 * (end[2] - start[2]) / wall_s, 2),
+            "hold_s": round(wall_s, 1),
+        }
+
+    def precision(self) -> dict[str, float | int] | None:
+        """Std of the HOLD errors per axis (None with fewer than two samples)."""
+        if len(self._errors) < 2:
+            return None
+        std = np.std(np.asarray(self._errors), axis=0)
+        return {
+            "std_x_m": round(float(std[0]), 5),
+            "std_y_m": round(float(std[1]), 5),
+            "std_z_m": round(float(std[2]), 5),
+            "samples": len(self._errors),
+        }
