@@ -320,6 +320,13 @@ class FlightCore:
             command = Command(t_ns, 0, 0, 0, 0, take_control=command.take_control)
         if fs.action is FailsafeAction.RELEASE:
             command = Command(t_ns, 0, 0, 0, 0, take_control=False)
+        phase, phase_events = out_phase.phase, tuple(out_phase.events)
+        if not command.take_control and phase in (Phase.TAKEOFF, Phase.HOLD, Phase.LAND):
+            # Handed to the pilot in the air (the blind descent's end): that is final. A pose
+            # or height coming back later must never take control again (sticky, SPEC §5).
+            event = PhaseEvent(t_ns, phase, Phase.RELEASED, "handed to the pilot in the air")
+            self.phase_state = replace(self.phase_state, phase=Phase.RELEASED, setpoint=None)
+            phase, phase_events = Phase.RELEASED, (*phase_events, event)
         self.last_command = command
         self.counters.failsafe_events += [
             f"{e.t_ns / NS_PER_S:.2f}s {e.action.name} {_cause(e.cause)}" for e in fs.events
@@ -345,11 +352,11 @@ class FlightCore:
         return ImuStepOutput(
             command=command,
             action=fs.action,
-            phase=out_phase.phase,
+            phase=phase,
             estimate=est,
             row=row,
             failsafe_events=tuple(fs.events),
-            phase_events=tuple(out_phase.events),
+            phase_events=phase_events,
             used_last_command=used_last,
             resubscribe_mk=fs.resubscribe_mk,
         )

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from mkflight.config import Config
 from mkflight.control.limits import command_within_limits
 from mkflight.control.phases import Phase, PhaseRequests
-from mkflight.flight.step import MAX_HOLD_OFFSET_M, FlightCore
+from mkflight.flight.step import BLIND_DESCENT_S, MAX_HOLD_OFFSET_M, FlightCore
 from mkflight.msgs import ImuSample, Pose2D
 from mkflight.safety.failsafe import FailsafeAction
 
@@ -162,3 +162,25 @@ def test_a_pose_applied_after_a_debugout_gap_is_fresh() -> None:
     out = core.imu_step(level_imu(t_ns + gap_ns), PhaseRequests(takeoff=True, handshake_ok=True))
     assert out.action is FailsafeAction.NONE
     assert out.phase is Phase.HOLD
+
+
+def test_a_blind_descent_handed_to_the_pilot_never_takes_control_again() -> None:
+    """No pose and no height while flying: level blind descent, then the pilot's sticks
+    after BLIND_DESCENT_S; when the laser comes back, control is NOT taken again."""
+    core = FlightCore(Config())
+    t_ns = fly_to_hold(core)
+    outs = []
+    for _ in range(int((BLIND_DESCENT_S + 3.0) * 1e9 / STEP_NS)):  # the laser is gone
+        t_ns += STEP_NS
+        outs.append(core.imu_step(level_imu(t_ns), PhaseRequests(takeoff=True, handshake_ok=True)))
+    assert any(o.command.take_control and o.command.gas_counts > 0 for o in outs[:20])
+    assert not outs[-1].command.take_control
+    assert outs[-1].phase is Phase.RELEASED
+    assert any(e.reason == "handed to the pilot in the air" for o in outs for e in o.phase_events)
+    for _ in range(100):  # the laser is back: still the pilot's
+        t_ns += STEP_NS
+        if t_ns % (2 * STEP_NS) == 0:
+            core.laser_step(Pose2D(t_ns, 0.0, 0.0, 0.0), 0.6, t_ns=t_ns)
+        out = core.imu_step(level_imu(t_ns), PhaseRequests(takeoff=True, handshake_ok=True))
+        assert not out.command.take_control
+        assert out.phase is Phase.RELEASED
