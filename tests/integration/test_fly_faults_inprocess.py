@@ -7,15 +7,19 @@ Every ExternControl the daemon wrote is read back from ``mk.raw``.
 
 from __future__ import annotations
 
+import asyncio
 import dataclasses
 import math
 import os
 import signal
+import socket
+import tempfile
 from pathlib import Path
 
 from mkflight.config import Config
 from mkflight.control.phases import Phase
 from mkflight.flight.app import FlightApp, FlightOptions
+from mkflight.flight.sdnotify import Notifier
 from mkflight.flight.step import ImuStepOutput
 from mkflight.logs.events import read_events
 from mkflight.logs.raw import read_raw
@@ -170,3 +174,41 @@ async def test_a_full_disk_mid_flight_lands_softly(tmp_path: Path) -> None:
     for c in _commands(folder):
         assert 0 <= int(c.gas) <= GAS_MAX
     assert float((folder / "truth.txt").read_text().splitlines()[-1].split()[3]) < 0.05
+
+
+async def test_systemd_hears_ready_watchdog_status_and_stopping(tmp_path: Path) -> None:
+    """Type=notify: READY only after the pre-flight, WATCHDOG from the steps, STATUS lines
+    with the phase, STOPPING at the end (a real unix datagram socket stands in)."""
+    cfg = Config()
+    folder = tmp_path / "flight"
+    folder.mkdir()
+    address = str(Path(tempfile.mkdtemp(prefix="n", dir="/tmp")) / "notify")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(address)
+    sock.setblocking(False)
+    datagrams: list[str] = []  # read as they come: a unix datagram queue holds only ~10
+    loop = asyncio.get_running_loop()
+    loop.add_reader(sock.fileno(), lambda: datagrams.append(sock.recv(4096).decode()))
+    sim = LiveSim(cfg, seed=2, truth_path=str(folder / "truth.txt"), truth_origin_ns=0)
+    mk, laser = await sim.start()
+    try:
+        app = FlightApp(
+            cfg,
+            FlightOptions(mk_port=mk, laser_port=laser, log_dir=folder, duration_s=8.0),
+            notifier=Notifier(address, watchdog_usec=1_000_000),
+        )
+        report = await app.fly()
+    finally:
+        await sim.stop()
+    await asyncio.sleep(0)  # the last datagrams' reader callbacks
+    loop.remove_reader(sock.fileno())
+    sock.close()
+    assert report.exit_code == 0, report.reason
+    assert datagrams[0].startswith("STATUS=") or datagrams[0] == "READY=1"
+    ready = datagrams.index("READY=1")
+    assert "WATCHDOG=1" not in datagrams[:ready]  # nothing pings before the checks passed
+    watchdogs = datagrams.count("WATCHDOG=1")
+    assert watchdogs >= 8  # ~4 a second over a 10 s flight
+    assert any(d.startswith("STATUS=HOLD") for d in datagrams)
+    assert "STOPPING=1" in datagrams[-3:]
+    assert app.notifier.failures == 0
