@@ -151,6 +151,7 @@ class SafetyConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_o
     mk_stale_s: Annotated[float, Meta(gt=0, le=5)] = 0.2
     mk_release_s: Annotated[float, Meta(gt=0, le=10)] = 1.0
     nonfinite_land_steps: Annotated[int, Meta(ge=1, le=100)] = 3
+    pilot_stick_counts: Annotated[int, Meta(ge=1, le=500)] = 25  # a stick moved: release
 
 
 class LoggingConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):

@@ -60,9 +60,10 @@ from mkflight.flight.stats import StepStats
 from mkflight.flight.step import FlightCore, ImuStepOutput, PilotSticks
 from mkflight.flight.summary import flight_summary
 from mkflight.mk.link import MkLink
-from mkflight.mk.messages import ExternControl
+from mkflight.mk.messages import ExternControl, Ppm
 from mkflight.msgs import Command, ImuSample
 from mkflight.safety.failsafe import StopRequest
+from mkflight.safety.pilot import PPM_PERIOD_S, PilotWatch
 from mkflight.urg.driver import UrgDriver
 
 log = structlog.get_logger("mkflight.flight")
@@ -145,6 +146,8 @@ class FlightApp:
         self.start_ns = 0
         self.logs: FlightLogs | None = None
         self.monitor = HoldMonitor()
+        self.pilot = PilotWatch(cfg.safety.pilot_stick_counts)
+        self._last_ppm: Ppm | None = None
         self.cpu0_s = 0.0
         self.wall0_s = 0.0
         self._last_out: ImuStepOutput | None = None
@@ -299,6 +302,16 @@ class FlightApp:
             self._handshake_confirms0 = confirms
         return confirms - self._handshake_confirms0 >= HANDSHAKE_CONFIRMS
 
+    def _pilot_override(self) -> bool:
+        """The newest 'P' answer through the pilot watch (a moved stick: latched)."""
+        ppm = self.link.last_ppm if self.link is not None else None
+        if ppm is not None and ppm is not self._last_ppm:
+            self._last_ppm = ppm
+            was = self.pilot.override
+            if self.pilot.update(ppm) and not was:
+                self._event(self.clock.now_ns(), "pilot_override", moved=dict(self.pilot.moved))
+        return self.pilot.override
+
     def _send(self, command: Command) -> None:
         assert self.link is not None
         if command.take_control and self.link.control_blocked is not None:
@@ -331,6 +344,7 @@ class FlightApp:
             ),
             sticks=PilotSticks(thrust_counts=sample.gas_counts),
             stop=stop,
+            pilot_override=self._pilot_override(),
         )
         written0 = self._last_cmd_write_ns
         self._send(out.command)
@@ -417,7 +431,7 @@ class FlightApp:
 
     async def _watchdog_task(self) -> None:
         """Duration, stop deadline, status line and STATUS: a timer that only watches."""
-        next_status = 0.0
+        next_status = next_ppm = 0.0
         while True:
             await asyncio.sleep(WATCH_PERIOD_S)
             now = self.clock.now_ns()
@@ -426,6 +440,10 @@ class FlightApp:
             if duration_s is not None and elapsed_s >= duration_s and self.stop_request is None:
                 self.request_stop(StopRequest.DURATION, f"--duration {duration_s:g} s")
             self._check_deadline()
+            if time.monotonic() >= next_ppm and self.link is not None:
+                next_ppm = time.monotonic() + PPM_PERIOD_S
+                with contextlib.suppress(LinkError):  # a dead port is the MK task's to report
+                    self.link.request_ppm()
             if time.monotonic() >= next_status:
                 next_status = time.monotonic() + STATUS_PERIOD_S
                 self._status()
@@ -523,6 +541,9 @@ class FlightApp:
                         log.error("task crashed", task=task.get_name(), error=repr(exc))
                         self.request_stop(StopRequest.CRASH, f"{task.get_name()} task: {exc}")
             exc = mk.exception()
+            if isinstance(exc, StopDeadlineError):
+                self._event(self.clock.now_ns(), "stop_deadline", error=str(exc))
+                return exc
             if exc is not None:
                 self._event(self.clock.now_ns(), "crash", task="mk-step", error=repr(exc))
                 return exc

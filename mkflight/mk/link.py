@@ -45,6 +45,7 @@ from mkflight.mk.messages import (
     Label,
     Ppm,
     VersionInfo,
+    ppm_request,
     version_request,
 )
 from mkflight.mk.sender import CommandSender
@@ -366,6 +367,14 @@ class MkLink:
             LinkError: the port is gone, or control was handed back (``control_blocked``).
         """
         return self._tx.send_extern_control(command)
+
+    def request_ppm(self) -> None:
+        """Ask for the pilot's receiver channels ('p'); the answer lands in ``last_ppm``.
+
+        Raises:
+            LinkError: the port is gone.
+        """
+        self._tx.send("p", ppm_request())
 
     async def wait_confirm(self, frame_no: int, timeout_s: float) -> bool:
         """Wait until the confirm of ``frame_no`` arrives; False if it did not in time."""

@@ -78,6 +78,7 @@ FAULT_KINDS: Final[dict[str, FaultKind]] = {
     "laser-garbage": FaultKind("NBYTES", integer=True),  # random bytes and a LF
     "laser-badsum": FaultKind("NSCANS", integer=True),  # the next replies with a bad sum
     "battery": FaultKind("VOLTS"),  # the FC reads VOLTS from then on
+    "pilot-nick": FaultKind("COUNTS", integer=True),  # the pilot moves the nick stick
 }
 _FORMAT: Final = "KIND@T[:ARG] (T: seconds after the start)"
 
@@ -385,6 +386,7 @@ class LiveSim:
             "laser-garbage": lambda: urg.inject_garbage(self._garbage(n) + b"\n"),
             "laser-badsum": lambda: urg.corrupt_next(n),
             "battery": battery,
+            "pilot-nick": lambda: fc.model.controls.set_sticks(nick=n),
         }
         actions[fault.kind]()
         self.fired.append(fault)

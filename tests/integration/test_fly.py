@@ -75,6 +75,7 @@ SCENARIOS = [
         ],
     ),
     Scenario("battery", ["--duration", "40"], faults=["battery@13:10.0"]),
+    Scenario("pilot", ["--duration", "40"], faults=["pilot-nick@14:60"]),
 ]
 
 
@@ -315,6 +316,22 @@ def test_low_battery_lands(flights: dict[str, Outcome]) -> None:
     assert any("battery" in c for c in causes), causes
     assert _phases(o.folder)[-3:] == ["LAND", "LANDED", "RELEASED"]
     _assert_commands_safe(o.folder)
+
+
+def test_a_pilot_moving_a_stick_gets_control_at_once(flights: dict[str, Outcome]) -> None:
+    """The FC's 'P' answer shows the nick stick moved: released at once, for good."""
+    o = flights["pilot"]
+    assert o.code == 0, o.stderr
+    events = read_events(o.folder / "events.jsonl").events
+    assert any(e.event == "pilot_override" for e in events)
+    causes = {str(e.fields.get("cause")) for e in events if e.event == "failsafe"}
+    assert "pilot_override" in causes
+    phases = _phases(o.folder)
+    assert phases[-1] == "RELEASED"
+    assert "LAND" not in phases  # no landing: the pilot flies
+    cmds = _assert_commands_safe(o.folder)
+    last_engaged = max(i for i, c in enumerate(cmds) if int(c.config) == 1)
+    assert all(int(c.config) == 0 for c in cmds[last_engaged + 1 :])
 
 
 def test_usage_errors(tmp_path: Path) -> None:
