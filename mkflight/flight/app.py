@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import gc
 import math
 import signal
 import sys
@@ -47,7 +48,7 @@ from mkflight.flight.flight_logs import FlightLogs
 from mkflight.flight.laser_pipeline import LaserResult
 from mkflight.flight.links import open_laser, open_mk
 from mkflight.flight.matcher_worker import MatcherError, MatcherWorker
-from mkflight.flight.monitor import HoldMonitor
+from mkflight.flight.monitor import GcWatch, HoldMonitor
 from mkflight.flight.preflight import (
     PreflightReport,
     check_fc,
@@ -146,6 +147,7 @@ class FlightApp:
         self.start_ns = 0
         self.logs: FlightLogs | None = None
         self.monitor = HoldMonitor()
+        self.gc_watch = GcWatch()
         self.pilot = PilotWatch(cfg.safety.pilot_stick_counts)
         self._last_ppm: Ppm | None = None
         self.cpu0_s = 0.0
@@ -492,6 +494,9 @@ class FlightApp:
                     raise
                 error = None  # stopped before take-off: nothing flew
             else:
+                gc.collect()
+                gc.freeze()  # imports and pre-flight objects: never walked again in flight
+                self.gc_watch.install()
                 self.notifier.ready()
                 self.start_ns = self.clock.now_ns()
                 error = await self._run_tasks()
@@ -560,6 +565,7 @@ class FlightApp:
     async def _shutdown(self, error: BaseException | None) -> dict[str, Any]:
         """Release, close the ports and the matcher, write the summary, close the logs."""
         self.notifier.stopping()
+        self.gc_watch.uninstall()
         released = False
         if self.link is not None:
             before = self.link.stats.frames_written

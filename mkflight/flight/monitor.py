@@ -12,6 +12,7 @@ Pure bookkeeping fed once per step by :mod:`mkflight.flight.app`:
 
 from __future__ import annotations
 
+import gc
 import time
 from dataclasses import dataclass, field
 
@@ -79,4 +80,46 @@ class HoldMonitor:
             "std_y_m": round(float(std[1]), 5),
             "std_z_m": round(float(std[2]), 5),
             "samples": len(self._errors),
+        }
+
+
+@dataclass(slots=True)
+class GcWatch:
+    """The garbage collector's pauses during the flight (a stop-the-world pause delays a step).
+
+    The daemon freezes everything that exists at READY (``gc.freeze()``: imports, config,
+    the pre-flight's objects), so the collections in flight walk only what the flight
+    allocates; this records how long they take.
+    """
+
+    collections: int = 0
+    full_collections: int = 0
+    max_pause_ms: float = 0.0
+    _t0: float = 0.0
+
+    def _callback(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self._t0 = time.perf_counter()
+            return
+        pause_ms = (time.perf_counter() - self._t0) * 1000.0
+        self.collections += 1
+        self.full_collections += info.get("generation") == 2
+        self.max_pause_ms = max(self.max_pause_ms, pause_ms)
+
+    def install(self) -> None:
+        """Start recording (idempotent)."""
+        if self._callback not in gc.callbacks:
+            gc.callbacks.append(self._callback)
+
+    def uninstall(self) -> None:
+        """Stop recording."""
+        if self._callback in gc.callbacks:
+            gc.callbacks.remove(self._callback)
+
+    def summary(self) -> dict[str, float | int]:
+        """Counts and the longest pause, for ``flight.json``."""
+        return {
+            "collections": self.collections,
+            "full_collections": self.full_collections,
+            "max_pause_ms": round(self.max_pause_ms, 3),
         }

@@ -38,6 +38,7 @@ def flight_summary(app: FlightApp, error: BaseException | None, released: bool) 
         "cpu_percent_of_one_core": round(100.0 * cpu_s / wall_s, 2) if wall_s > 0 else None,
         "cpu_percent_in_hold": app.monitor.cpu_percent(),
         "precision_estimate": app.monitor.precision(),
+        "gc": app.gc_watch.summary(),
         "matcher": {
             "scans": app.matches,
             "cpu_ms_per_scan": round(1000 * app.monitor.matcher_cpu_s / app.matches, 3)

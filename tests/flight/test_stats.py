@@ -73,3 +73,24 @@ def test_added_jitter_is_the_change_of_latency() -> None:
     d = s.summary()
     assert d["added_jitter_p99_ms"] == pytest.approx(2.0)
     assert math.isfinite(s.last_latency_ms())
+
+
+def test_gc_watch_records_collections_and_pauses() -> None:
+    import gc
+
+    from mkflight.flight.monitor import GcWatch
+
+    watch = GcWatch()
+    watch.install()
+    watch.install()  # idempotent: one callback
+    try:
+        gc.collect()
+        gc.collect(0)
+    finally:
+        watch.uninstall()
+    d = watch.summary()
+    assert d["collections"] == 2
+    assert d["full_collections"] == 1
+    assert d["max_pause_ms"] > 0
+    gc.collect()  # after uninstall: not counted
+    assert watch.summary()["collections"] == 2
