@@ -127,11 +127,9 @@ class FlightCore:
         """The set-point the controller was given on the last step (HOLD: with the offset)."""
 
     def set_hold_offset(self, dx_m: float, dy_m: float) -> None:
-        """Move the HOLD set-point by (dx, dy) in W from the take-off x, y (an excitation).
+        """Move the HOLD set-point by (dx, dy) in W (``sim hover --excite``, ``analyze latency``).
 
-        For response tests (``sim hover --excite``, ``analyze latency``): each component is
-        clamped to ±:data:`MAX_HOLD_OFFSET_M`; a non-finite one counts as 0. Take-off and
-        landing ignore it: they stay above the take-off point.
+        Clamped to ±:data:`MAX_HOLD_OFFSET_M`, non-finite = 0; take-off and landing ignore it.
         """
 
         def safe(v: float) -> float:
@@ -230,8 +228,7 @@ class FlightCore:
                 # Before take-off the laser's age is not a flight risk (it blocks take-off
                 # through the pre-flight checks instead).
                 laser_age_s=laser_age_s if flying else 0.0,
-                # Touching down, the tilting scan plane meets the floor and the matcher may
-                # call the scene degenerate: the landing is under way, nothing to protect.
+                # At touchdown the scan plane meets the floor: degenerate, and irrelevant.
                 scan_degenerate=self._degenerate
                 and flying
                 and not (

@@ -369,11 +369,7 @@ class MkLink:
         return self._tx.send_extern_control(command)
 
     def request_ppm(self) -> None:
-        """Ask for the pilot's receiver channels ('p'); the answer lands in ``last_ppm``.
-
-        Raises:
-            LinkError: the port is gone.
-        """
+        """Ask for the pilot's receiver channels ('p'); the answer lands in ``last_ppm``."""
         self._tx.send("p", ppm_request())
 
     async def wait_confirm(self, frame_no: int, timeout_s: float) -> bool:

@@ -13,6 +13,7 @@ import json
 import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -91,9 +92,15 @@ def _read_paths(proc: subprocess.Popen[str]) -> tuple[str, str]:
 
 
 def _run_all(base: Path) -> dict[str, Outcome]:
-    """Start every scenario at once; wait for all; return their outcomes."""
+    """Start every scenario at once; wait for all; return their outcomes.
+
+    The flights run side by side; SIGTERM goes out from a timer thread at its time; a
+    thread per flight waits for its exit (``communicate``), so nothing polls or sleeps.
+    """
     running: dict[str, tuple[Scenario, subprocess.Popen[str], subprocess.Popen[str] | None]] = {}
     t0 = time.monotonic()
+    term_sent: dict[str, float] = {}
+    timers: list[threading.Timer] = []
     for sc in SCENARIOS:
         folder = base / sc.name
         sim: subprocess.Popen[str] | None = None
@@ -114,37 +121,48 @@ def _run_all(base: Path) -> dict[str, Outcome]:
             stdin=subprocess.DEVNULL,
         )
         running[sc.name] = (sc, fly, sim)
+        if sc.sigterm_after_s is not None:
+
+            def term(name: str = sc.name, proc: subprocess.Popen[str] = fly) -> None:
+                term_sent[name] = time.monotonic()
+                proc.send_signal(signal.SIGTERM)
+
+            timer = threading.Timer(max(0.0, sc.sigterm_after_s - (time.monotonic() - t0)), term)
+            timer.start()
+            timers.append(timer)
+    finished: dict[str, tuple[str, str, float]] = {}
+
+    def wait(name: str, proc: subprocess.Popen[str]) -> None:
+        try:
+            out, err = proc.communicate(timeout=FLIGHT_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+        finished[name] = (out, err, time.monotonic())
+
+    waiters = [
+        threading.Thread(target=wait, args=(name, fly)) for name, (_, fly, _) in running.items()
+    ]
+    for w in waiters:
+        w.start()
+    for w in waiters:
+        w.join()
     outcomes: dict[str, Outcome] = {}
-    term_sent: dict[str, float] = {}
-    while len(outcomes) < len(running):
-        now = time.monotonic()
-        for name, (sc, fly, sim) in running.items():
-            if name in outcomes:
-                continue
-            if (
-                sc.sigterm_after_s is not None
-                and name not in term_sent
-                and now - t0 >= sc.sigterm_after_s
-            ):
-                fly.send_signal(signal.SIGTERM)
-                term_sent[name] = now
-            if fly.poll() is not None or now - t0 > FLIGHT_TIMEOUT_S:
-                if fly.poll() is None:
-                    fly.kill()
-                out, err = fly.communicate()
-                if sim is not None:
-                    sim.send_signal(signal.SIGTERM)
-                    sim.communicate(timeout=10)
-                done = time.monotonic()
-                outcomes[name] = Outcome(
-                    code=fly.returncode,
-                    stdout=out,
-                    stderr=err,
-                    folder=base / name,
-                    wall_s=done - t0,
-                    sigterm_to_exit_s=done - term_sent[name] if name in term_sent else None,
-                )
-        time.sleep(0.05)  # polling several child processes; nothing to await here
+    for name, (_, fly, sim) in running.items():
+        out, err, done = finished[name]
+        if sim is not None:
+            sim.send_signal(signal.SIGTERM)
+            sim.communicate(timeout=10)
+        outcomes[name] = Outcome(
+            code=fly.returncode,
+            stdout=out,
+            stderr=err,
+            folder=base / name,
+            wall_s=done - t0,
+            sigterm_to_exit_s=done - term_sent[name] if name in term_sent else None,
+        )
+    for timer in timers:
+        timer.cancel()
     return outcomes
 
 
