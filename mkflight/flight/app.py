@@ -12,15 +12,20 @@ Tasks (STYLE: pure core per tick, asyncio shell per rate):
   ``scan`` event names the step). The pitch and roll at the scan's time (for the hat,
   eq 26) come from the newest DebugOut samples.
 * **watchdog task** - a timer that only watches: ``--duration``, a stop that takes too
-  long, the status line and systemd's STATUS.
+  long, the pilot's sticks (a 'p' request twice a second, :mod:`mkflight.safety.pilot`),
+  the status line and systemd's STATUS.
 
-One way out: SIGINT, SIGTERM, ``--duration`` and a crash of the laser or watchdog task
-become a :class:`StopRequest` that the step turns into a soft landing and a release
-(SPEC §5). When the phase machine reaches RELEASED - or the FC is lost, or the MK task
-itself crashes - the shell closes everything in order: the link hands control back
-(Config = 0, several frames, also after a crash), the laser gets its QT, the matcher
-process ends, the recordings and logs are flushed and closed and ``flight.json`` gets
-the summary. A crash or a lost FC exits 1 after that, everything else 0.
+One way out: SIGINT, SIGTERM, SIGHUP, ``--duration``, a failed log write and a crash of
+the laser or watchdog task become a :class:`StopRequest` that the step turns into a soft
+landing and a release (SPEC §5); before READY a stop cancels the pre-flight. When the
+phase machine reaches RELEASED - or the FC is lost, the landing overruns its deadline,
+or the MK task itself crashes - the shell closes everything in order: the link hands
+control back (Config = 0, several frames, also after a crash), the laser gets its QT,
+the matcher process ends, the recordings and logs are flushed and closed and
+``flight.json`` gets the summary (:mod:`~mkflight.flight.summary`). A crash, a lost FC,
+an overrun deadline or lost logs exit 1 after that, everything else 0. The ports are
+opened by :mod:`~mkflight.flight.links`, the folder's files are
+:mod:`~mkflight.flight.flight_logs`', the checks :mod:`~mkflight.flight.preflight`'s.
 """
 
 from __future__ import annotations
@@ -135,7 +140,6 @@ class FlightApp:
         self.stop_request: StopRequest | None = None
         self.stop_reason = ""
         self.stop_at_ns: int | None = None
-        self.crash: BaseException | None = None
         self.link: MkLink | None = None
         self.driver: UrgDriver | None = None
         self.worker = MatcherWorker(cfg, mode=cfg.scanmatch.worker)
