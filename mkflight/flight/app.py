@@ -45,10 +45,10 @@ from typing import Any
 
 import structlog
 
-from mkflight.clock import NS_PER_S, Clock, MonotonicClock
+from mkflight.clock import Clock, MonotonicClock
 from mkflight.config import Config
 from mkflight.control.phases import Phase, PhaseRequests
-from mkflight.errors import FlightError, LinkError, PreflightError
+from mkflight.errors import FlightError, PreflightError
 from mkflight.flight.flight_logs import FlightLogs
 from mkflight.flight.laser_pipeline import LaserResult
 from mkflight.flight.links import open_laser, open_mk
@@ -65,28 +65,27 @@ from mkflight.flight.sdnotify import Notifier
 from mkflight.flight.stats import StepStats
 from mkflight.flight.step import FlightCore, ImuStepOutput, PilotSticks
 from mkflight.flight.summary import flight_summary
+from mkflight.flight.tasks import (
+    StopDeadlineError,
+    laser_task,
+    mk_task,
+    watchdog_task,
+)
 from mkflight.mk.link import MkLink
 from mkflight.mk.messages import ExternControl, Ppm
 from mkflight.msgs import Command, ImuSample
 from mkflight.safety.failsafe import StopRequest
-from mkflight.safety.pilot import PPM_PERIOD_S, PilotWatch
+from mkflight.safety.pilot import PilotWatch
 from mkflight.urg.driver import UrgDriver
 
 log = structlog.get_logger("mkflight.flight")
 
 STOP_DEADLINE_S = 9.0
 """After a stop request, release regardless if the landing has not ended by then (SPEC: 10 s)."""
-WATCH_PERIOD_S = 0.05
-STATUS_PERIOD_S = 0.5
 ATTITUDE_HISTORY = 64  # DebugOut samples kept for the attitude at a scan's time (~3 s)
 HANDSHAKE_CONFIRMS = 3  # confirms of neutral frames needed before take-off
 SETTLE_S = 3.0  # HOLD precision counts from this long after HOLD begins (as sim hover)
 WORKER_START_TIMEOUT_S = 60.0  # spawning the matcher (numpy, scipy) on a slow board
-FC_REOPEN_S = 3.0  # a vanished FC port: this long to come back, only to hand control back
-
-
-class StopDeadlineError(FlightError):
-    """A stop request did not end in RELEASED in time: hand control back regardless."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,7 +143,7 @@ class FlightApp:
         self.driver: UrgDriver | None = None
         self.worker = MatcherWorker(cfg, mode=cfg.scanmatch.worker)
         self.preflight: PreflightReport | None = None
-        self._pending: deque[LaserResult] = deque()
+        self.pending: deque[LaserResult] = deque()
         self._attitude: deque[tuple[int, float, float]] = deque(maxlen=ATTITUDE_HISTORY)
         self._last_cmd_write_ns = 0
         self._handshake_confirms0: int | None = None
@@ -180,7 +179,7 @@ class FlightApp:
         log.error("log write failed: landing", error=str(err))
         self.request_stop(StopRequest.CRASH, f"log write failed: {err}")
 
-    def _mark(self, which: str, kind: str, text: str) -> None:
+    def mark(self, which: str, kind: str, text: str) -> None:
         """An 'o' (opened) or 'c' (lost) record in a port's raw recording."""
         if self.logs is not None:
             rec = self.logs.mk_raw if which == "mk" else self.logs.laser_raw
@@ -203,14 +202,14 @@ class FlightApp:
         """Both ports as links (pre-flight checks 'FC port' and 'laser port')."""
         clock = self.clock
         self.link = await open_mk(
-            self.opts.mk_port, self.cfg, clock, self._mk_tap, lambda p: self._mark("mk", "o", p)
+            self.opts.mk_port, self.cfg, clock, self._mk_tap, lambda p: self.mark("mk", "o", p)
         )
         self.driver = await open_laser(
             self.opts.laser_port,
             self.cfg,
             clock,
             self._laser_tap,
-            lambda p: self._mark("laser", "o", p),
+            lambda p: self.mark("laser", "o", p),
         )
 
     async def run_preflight(self) -> PreflightReport:
@@ -246,10 +245,10 @@ class FlightApp:
             last_scan=scans[-1],
             first_result=first,
         )
-        self._pending.append(first)
+        self.pending.append(first)
         if self.logs is not None:
             self.logs.set_fc_version(version.text)
-        self._event(self.clock.now_ns(), "preflight", **report.as_dict())
+        self.event(self.clock.now_ns(), "preflight", **report.as_dict())
         self.preflight = report
         return report
 
@@ -265,13 +264,14 @@ class FlightApp:
             self.stop_request, self.stop_reason, self.stop_at_ns = request, reason, now
             if self._preflight_task is not None and not self._preflight_task.done():
                 self._preflight_task.cancel()
-        self._event(now, "stop", request=request.value, reason=reason)
+        self.event(now, "stop", request=request.value, reason=reason)
 
-    def _event(self, t_ns: int, event: str, **fields: Any) -> None:
+    def event(self, t_ns: int, event: str, **fields: Any) -> None:
+        """One ``events.jsonl`` line (nothing before the folder exists or after a failure)."""
         if self.logs is not None:
             self.logs.event(t_ns, event, **fields)
 
-    def _attitude_at(self, t_ns: int) -> tuple[float, float]:
+    def attitude_at(self, t_ns: int) -> tuple[float, float]:
         """Pitch and roll of the DebugOut sample nearest ``t_ns`` (NaN if none)."""
         if not self._attitude:
             return math.nan, math.nan
@@ -280,14 +280,14 @@ class FlightApp:
 
     def _apply_laser_results(self, now_ns: int) -> None:
         core = self.core
-        while self._pending:
-            r = self._pending.popleft()
+        while self.pending:
+            r = self.pending.popleft()
             row = core.laser_step(
                 r.pose, r.height_m, t_ns=r.scan_t_ns, degenerate=r.degenerate, arrival_ns=now_ns
             )
             if row is not None and self.logs is not None:
                 self.logs.row3(row)
-            self._event(
+            self.event(
                 r.scan_t_ns,
                 "scan",
                 index=None if row is None else row.index,
@@ -315,7 +315,7 @@ class FlightApp:
             self._last_ppm = ppm
             was = self.pilot.override
             if self.pilot.update(ppm) and not was:
-                self._event(self.clock.now_ns(), "pilot_override", moved=dict(self.pilot.moved))
+                self.event(self.clock.now_ns(), "pilot_override", moved=dict(self.pilot.moved))
         return self.pilot.override
 
     def _send(self, command: Command) -> None:
@@ -333,7 +333,7 @@ class FlightApp:
             )
         )
 
-    def _step(self, sample: ImuSample) -> ImuStepOutput:
+    def step(self, sample: ImuSample) -> ImuStepOutput:
         """One DebugOut: laser results in, the step, the command out, then the logs."""
         if self.sample_filter is not None:
             sample = self.sample_filter(sample)
@@ -375,85 +375,6 @@ class FlightApp:
             sp = self.core.active_setpoint
             self.logs.step(sample, out, sp, self.stats.last_latency_ms())
 
-    async def _mk_task(self) -> None:
-        """The 50 ms step, on every DebugOut, until the phase machine releases."""
-        link = self.link
-        assert link is not None
-        # The link hands control back after mk_release_s without DebugOut; a little later
-        # the flight ends (well inside systemd's WatchdogSec = 2 s).
-        timeout_s = self.cfg.safety.mk_release_s + 0.3
-        link.subscribe()  # a fresh subscription: pre-flight may have outlasted the last one
-        while True:
-            try:
-                sample = await link.next_sample(timeout_s)
-            except LinkError as err:
-                if link.error is not None:  # the port itself failed: try to hand back
-                    with contextlib.suppress(LinkError, TimeoutError):
-                        async with asyncio.timeout(FC_REOPEN_S):
-                            await link.reopen(max_wait_s=FC_REOPEN_S)  # releases first
-                msg = f"FlightCtrl lost: {err}; it hands control to the pilot's sticks"
-                raise FlightError(msg) from err
-            if sample.t_ns < self.start_ns:
-                continue  # older than READY: the FC may have stopped streaming since
-            self._check_deadline()
-            out = self._step(sample)
-            if out.phase is Phase.RELEASED:
-                return
-
-    def _check_deadline(self) -> None:
-        """A stop request not landed in time: end the flight (the shutdown releases)."""
-        deadline_s = self.opts.stop_deadline_s
-        now = self.clock.now_ns()
-        if self.stop_at_ns is not None and (now - self.stop_at_ns) / NS_PER_S > deadline_s:
-            msg = f"the landing did not end within {deadline_s:g} s of the stop request"
-            raise StopDeadlineError(msg)
-
-    async def _laser_task(self) -> None:
-        """Scans to the matcher process; results queued for the MK task."""
-        assert self.driver is not None
-        timeout_s = max(1.0, self.cfg.safety.laser_stale_s * 3)
-        while True:
-            try:
-                scan = await self.driver.next_scan(timeout_s)
-            except LinkError as err:
-                if self.driver.error is None:  # no scan in time: the driver keeps restarting
-                    self._event(self.clock.now_ns(), "laser_silent", error=str(err))
-                    continue  # and the step's laser staleness check lands the vehicle
-                self._event(self.clock.now_ns(), "laser_lost", error=str(err))
-                self._mark("laser", "c", str(err))
-                log.warning("laser lost", error=str(err))
-                await self.driver.reopen(max_wait_s=30.0)
-                self._event(self.clock.now_ns(), "laser_reopened")
-                continue
-            pitch, roll = self._attitude_at(scan.t_ns)
-            try:
-                result = await self.worker.process(scan, pitch, roll)
-            except MatcherError as err:
-                msg = f"scan matcher failed: {err}"
-                raise FlightError(msg) from err
-            self.monitor.matcher_cpu_s += result.compute_s
-            self.matches += 1
-            self._pending.append(result)
-
-    async def _watchdog_task(self) -> None:
-        """Duration, stop deadline, status line and STATUS: a timer that only watches."""
-        next_status = next_ppm = 0.0
-        while True:
-            await asyncio.sleep(WATCH_PERIOD_S)
-            now = self.clock.now_ns()
-            elapsed_s = (now - self.start_ns) / NS_PER_S
-            duration_s = self.opts.duration_s
-            if duration_s is not None and elapsed_s >= duration_s and self.stop_request is None:
-                self.request_stop(StopRequest.DURATION, f"--duration {duration_s:g} s")
-            self._check_deadline()
-            if time.monotonic() >= next_ppm and self.link is not None:
-                next_ppm = time.monotonic() + PPM_PERIOD_S
-                with contextlib.suppress(LinkError):  # a dead port is the MK task's to report
-                    self.link.request_ppm()
-            if time.monotonic() >= next_status:
-                next_status = time.monotonic() + STATUS_PERIOD_S
-                self._status()
-
     def status_line(self) -> str:
         """Phase, height, position error, battery, step latency (SPEC §7)."""
         out = self._last_out
@@ -467,7 +388,8 @@ class FlightApp:
             f"step {self.stats.last_latency_ms():5.2f} ms  {out.action.name}"
         )
 
-    def _status(self) -> None:
+    def show_status(self) -> None:
+        """The status line: to systemd's STATUS, and redrawn on the terminal if there is one."""
         line = self.status_line()
         self.notifier.status(line)
         if self._status_tty:
@@ -527,10 +449,10 @@ class FlightApp:
 
     async def _run_tasks(self) -> BaseException | None:
         """Run the three tasks; a crash of laser/watchdog lands; the MK task's end ends all."""
-        mk = asyncio.create_task(self._mk_task(), name="mk-step")
+        mk = asyncio.create_task(mk_task(self), name="mk-step")
         others = {
-            asyncio.create_task(self._laser_task(), name="laser"),
-            asyncio.create_task(self._watchdog_task(), name="watchdog"),
+            asyncio.create_task(laser_task(self), name="laser"),
+            asyncio.create_task(watchdog_task(self), name="watchdog"),
         }
         crash: BaseException | None = None
         try:
@@ -540,21 +462,21 @@ class FlightApp:
                     others.discard(task)
                     exc = task.exception()
                     if isinstance(exc, StopDeadlineError):  # release now: the shutdown does it
-                        self._event(self.clock.now_ns(), "stop_deadline", error=str(exc))
+                        self.event(self.clock.now_ns(), "stop_deadline", error=str(exc))
                         return exc
                     if exc is not None and crash is None:
                         crash = exc
-                        self._event(
+                        self.event(
                             self.clock.now_ns(), "crash", task=task.get_name(), error=repr(exc)
                         )
                         log.error("task crashed", task=task.get_name(), error=repr(exc))
                         self.request_stop(StopRequest.CRASH, f"{task.get_name()} task: {exc}")
             exc = mk.exception()
             if isinstance(exc, StopDeadlineError):
-                self._event(self.clock.now_ns(), "stop_deadline", error=str(exc))
+                self.event(self.clock.now_ns(), "stop_deadline", error=str(exc))
                 return exc
             if exc is not None:
-                self._event(self.clock.now_ns(), "crash", task="mk-step", error=repr(exc))
+                self.event(self.clock.now_ns(), "crash", task="mk-step", error=repr(exc))
                 return exc
             return crash
         finally:
