@@ -77,6 +77,7 @@ SCENARIOS = [
     ),
     Scenario("battery", ["--duration", "40"], faults=["battery@13:10.0"]),
     Scenario("pilot", ["--duration", "40"], faults=["pilot-nick@14:60"]),
+    Scenario("laser_unplug", ["--duration", "40"], faults=["laser-vanish@14", "laser-replug@15"]),
 ]
 
 
@@ -350,6 +351,21 @@ def test_a_pilot_moving_a_stick_gets_control_at_once(flights: dict[str, Outcome]
     cmds = _assert_commands_safe(o.folder)
     last_engaged = max(i for i, c in enumerate(cmds) if int(c.config) == 1)
     assert all(int(c.config) == 0 for c in cmds[last_engaged + 1 :])
+
+
+def test_laser_unplugged_and_back_is_reopened_while_landing(flights: dict[str, Outcome]) -> None:
+    """The URG's USB cable out for 1 s (it restarts when powered again): the daemon reports
+    it, lands on the stale laser, reopens the port and ends released, exit 0."""
+    o = flights["laser_unplug"]
+    assert o.code == 0, o.stderr
+    names = [e.event for e in read_events(o.folder / "events.jsonl").events]
+    assert "laser_lost" in names
+    assert "laser_reopened" in names
+    assert _phases(o.folder)[-3:] == ["LAND", "LANDED", "RELEASED"]
+    kinds = [r.kind for r in read_raw(o.folder / "laser.raw").records]
+    assert kinds.count("o") >= 2  # opened, and opened again
+    assert "c" in kinds
+    _assert_commands_safe(o.folder)
 
 
 def test_usage_errors(tmp_path: Path) -> None:
