@@ -47,6 +47,10 @@ async def mk_task(app: FlightApp) -> None:
     while True:
         try:
             sample = await link.next_sample(timeout_s)
+            if sample.t_ns < app.start_ns:
+                continue  # older than READY: the FC may have stopped streaming since
+            check_deadline(app)
+            out = app.step(sample)  # its command's write may find the port gone
         except LinkError as err:
             if link.error is not None:  # the port itself failed: try to hand back
                 with contextlib.suppress(LinkError, TimeoutError):
@@ -54,10 +58,6 @@ async def mk_task(app: FlightApp) -> None:
                         await link.reopen(max_wait_s=FC_REOPEN_S)  # releases first
             msg = f"FlightCtrl lost: {err}; it hands control to the pilot's sticks"
             raise FlightError(msg) from err
-        if sample.t_ns < app.start_ns:
-            continue  # older than READY: the FC may have stopped streaming since
-        check_deadline(app)
-        out = app.step(sample)
         if out.phase is Phase.RELEASED:
             return
 
