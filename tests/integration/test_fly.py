@@ -26,8 +26,8 @@ from mkflight.logs.flight_json import read_flight_json
 from mkflight.logs.raw import read_raw
 from mkflight.logs.table3 import read_table3
 from mkflight.logs.table4 import read_table4
-from mkflight.mk.codec import FrameParser
 from mkflight.mk.messages import ExternControl
+from tests.integration.recorded import commands_sent
 
 MKFLIGHT = [sys.executable, "-m", "mkflight"]
 GAS_MAX = 130  # control.gas_max, the default config
@@ -172,18 +172,8 @@ def flights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Outcome]:
     return _run_all(tmp_path_factory.mktemp("flights"))
 
 
-def _commands(folder: Path) -> list[ExternControl]:
-    """Every ExternControl the daemon wrote to the FC port (from mk.raw)."""
-    parser = FrameParser()
-    out: list[ExternControl] = []
-    for rec in read_raw(folder / "mk.raw").records:
-        if rec.kind == "w":
-            out += [ExternControl.decode(f) for f in parser.feed(rec.data) if f.cmd == "b"]
-    return out
-
-
 def _assert_commands_safe(folder: Path) -> list[ExternControl]:
-    cmds = _commands(folder)
+    cmds = commands_sent(folder)
     assert cmds, "no ExternControl recorded"
     for c in cmds:
         assert 0 <= int(c.gas) <= GAS_MAX
@@ -291,7 +281,7 @@ def test_fc_vanishing_exits_1_with_a_clear_line_and_intact_logs(
     read_table4(o.folder / "imu_50ms.log")
     read_table3(o.folder / "laser_100ms.log")
     assert _summary(o.folder)["exit_code"] == 1
-    for c in _commands(o.folder):
+    for c in commands_sent(o.folder):
         assert 0 <= int(c.gas) <= GAS_MAX
 
 

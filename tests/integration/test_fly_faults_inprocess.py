@@ -23,21 +23,11 @@ from mkflight.flight.sdnotify import Notifier
 from mkflight.flight.step import ImuStepOutput
 from mkflight.logs.events import read_events
 from mkflight.logs.raw import read_raw
-from mkflight.mk.codec import FrameParser
-from mkflight.mk.messages import ExternControl
 from mkflight.msgs import ImuSample
 from mkflight.sim.live import LiveSim
+from tests.integration.recorded import commands_sent
 
 GAS_MAX = Config().control.gas_max
-
-
-def _commands(folder: Path) -> list[ExternControl]:
-    parser = FrameParser()
-    out: list[ExternControl] = []
-    for rec in read_raw(folder / "mk.raw").records:
-        if rec.kind == "w":
-            out += [ExternControl.decode(f) for f in parser.feed(rec.data) if f.cmd == "b"]
-    return out
 
 
 class HoldFault:
@@ -102,7 +92,7 @@ async def test_nan_in_the_estimate_lands_with_every_command_in_limits(tmp_path: 
     assert reason.startswith("failsafe:")
     causes = [e.fields.get("cause") for e in read_events(folder / "events.jsonl").events]
     assert "nonfinite" in causes
-    cmds = _commands(folder)
+    cmds = commands_sent(folder)
     for c in cmds:
         assert 0 <= int(c.gas) <= GAS_MAX
         assert all(-127 <= int(v) <= 127 for v in (c.nick, c.roll, c.yaw))
@@ -116,7 +106,7 @@ async def test_a_crash_in_the_step_releases_and_exits_1(tmp_path: Path) -> None:
     code, reason, folder = await _fly(tmp_path, fault)
     assert code == 1
     assert "injected crash" in reason
-    cmds = _commands(folder)
+    cmds = commands_sent(folder)
     assert int(cmds[-1].config) == 0  # handed back to the pilot at once
     assert sum(1 for c in cmds[-5:] if int(c.config) == 0) >= 3  # several release frames
     events = read_events(folder / "events.jsonl").events
@@ -134,7 +124,7 @@ async def test_a_landing_that_overruns_its_deadline_is_released(tmp_path: Path) 
     events = read_events(folder / "events.jsonl").events
     assert any(e.event == "stop" and e.fields.get("request") == "sigterm" for e in events)
     assert any(e.event == "stop_deadline" for e in events)
-    assert int(_commands(folder)[-1].config) == 0
+    assert int(commands_sent(folder)[-1].config) == 0
 
 
 async def test_a_full_disk_mid_flight_lands_softly(tmp_path: Path) -> None:
@@ -171,7 +161,7 @@ async def test_a_full_disk_mid_flight_lands_softly(tmp_path: Path) -> None:
     assert report.reason.startswith("log write failed")
     assert report.summary["final_phase"] == "RELEASED"
     assert "No space left" in str(report.summary["log_error"])
-    for c in _commands(folder):
+    for c in commands_sent(folder):
         assert 0 <= int(c.gas) <= GAS_MAX
     assert float((folder / "truth.txt").read_text().splitlines()[-1].split()[3]) < 0.05
 
