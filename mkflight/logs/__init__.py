@@ -4,6 +4,8 @@
 * :mod:`~mkflight.logs.table4` -- ``imu_50ms.log`` (seed TABLE IV, 14 columns).
 * :mod:`~mkflight.logs.flight_json` -- ``flight.json`` (start, versions, config, summary).
 * :mod:`~mkflight.logs.events` -- ``events.jsonl`` (everything else, JSON lines).
+* :mod:`~mkflight.logs.flight` -- :func:`load_flight`: a whole folder as numpy arrays
+  with named columns, for your own analysis.
 
 Writers create their file in a flight folder and flush every row; readers raise
 :class:`mkflight.errors.ReplayError` naming the file and line, and drop (and report) a
@@ -14,7 +16,15 @@ from __future__ import annotations
 
 from mkflight.logs._table import TableData
 from mkflight.logs.events import Event, EventsData, EventsWriter, read_events
+from mkflight.logs.flight import (
+    FlightData,
+    event_table,
+    extern_control_frames,
+    extern_controls,
+    load_flight,
+)
 from mkflight.logs.flight_json import (
+    LOG_FORMAT,
     FlightInfo,
     new_flight_info,
     read_flight_json,
@@ -25,15 +35,21 @@ from mkflight.logs.table3 import Table3Row, Table3Writer, read_table3
 from mkflight.logs.table4 import Table4Row, Table4Writer, read_table4
 
 __all__ = [
+    "LOG_FORMAT",
     "Event",
     "EventsData",
     "EventsWriter",
+    "FlightData",
     "FlightInfo",
     "Table3Row",
     "Table3Writer",
     "Table4Row",
     "Table4Writer",
     "TableData",
+    "event_table",
+    "extern_control_frames",
+    "extern_controls",
+    "load_flight",
     "new_flight_info",
     "read_events",
     "read_flight_json",

@@ -3,6 +3,7 @@
 Format: one JSON object (UTF-8, indented)::
 
     {
+      "log_format": 1,                              # the flight folder's format version
       "start_utc": "2024-05-01T12:00:00.000000Z",  # ISO 8601, UTC
       "mkflight_version": "0.1.0",
       "fc_version": "0.84a",                        # null until the FC answered
@@ -14,6 +15,11 @@ It is written at the start and again with the summary at the end. Each write goe
 ``flight.json.tmp``, is fsynced and renamed over ``flight.json``, so a reader never sees a
 half-written file. Non-finite floats in the summary (e.g. a precision that could not be
 computed) are written as ``null``: strict JSON has no NaN.
+
+``log_format`` versions the whole flight folder (the files, their columns, the events'
+fields; SPEC §6): it changes only when a reader of the previous format would misread the
+folder. Files written before the key existed are format 1; a reader refuses a format newer
+than :data:`LOG_FORMAT` with a :class:`~mkflight.errors.ReplayError` naming the file.
 """
 
 from __future__ import annotations
@@ -24,14 +30,16 @@ import os
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import mkflight
 from mkflight.config import Config, config_to_dict
 from mkflight.errors import ReplayError
 
 FILE_NAME = "flight.json"
-_KEYS = ("start_utc", "mkflight_version", "fc_version", "config", "summary")
+LOG_FORMAT: Final = 1
+"""The flight-folder format this mkflight writes and reads (absent from a file: 1)."""
+_KEYS = ("log_format", "start_utc", "mkflight_version", "fc_version", "config", "summary")
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,6 +51,7 @@ class FlightInfo:
     fc_version: str | None
     config: dict[str, Any]
     summary: dict[str, Any] | None = None
+    log_format: int = LOG_FORMAT
 
 
 def new_flight_info(start: datetime, cfg: Config, fc_version: str | None = None) -> FlightInfo:
@@ -97,8 +106,9 @@ def read_flight_json(path: str | Path) -> FlightInfo:
     """Read a ``flight.json`` (or the one in a flight folder).
 
     Raises:
-        ReplayError: unreadable, not JSON, or a key missing or of the wrong type; the
-            message names the file and the key.
+        ReplayError: unreadable, not JSON, a key missing or of the wrong type, or a
+            ``log_format`` newer than :data:`LOG_FORMAT`; the message names the file and
+            the key.
     """
     path = Path(path)
     if path.is_dir():
@@ -118,6 +128,17 @@ def read_flight_json(path: str | Path) -> FlightInfo:
         "config": (dict,),
         "summary": (dict, type(None)),
     }
+    log_format = data.setdefault("log_format", 1)  # written before the key existed
+    if not isinstance(log_format, int) or isinstance(log_format, bool) or log_format < 1:
+        msg = f"{path}: log_format: expected a positive integer, got {log_format!r}"
+        raise ReplayError(msg)
+    if log_format > LOG_FORMAT:
+        msg = (
+            f"{path}: log_format {log_format} (written by mkflight "
+            f"{data.get('mkflight_version')!s}) is newer than this mkflight "
+            f"{mkflight.__version__} reads ({LOG_FORMAT}); upgrade mkflight to read it"
+        )
+        raise ReplayError(msg)
     for key, types in expected.items():
         if key not in data:
             msg = f"{path}: missing key {key!r}"

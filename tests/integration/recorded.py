@@ -4,16 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from mkflight.logs.flight import extern_controls
 from mkflight.logs.raw import read_raw
-from mkflight.mk.codec import FrameParser
 from mkflight.mk.messages import ExternControl
 
 
 def commands_sent(folder: Path) -> list[ExternControl]:
     """Every ExternControl the daemon wrote to the FC port, from ``mk.raw``."""
-    parser = FrameParser()
-    out: list[ExternControl] = []
-    for rec in read_raw(folder / "mk.raw").records:
-        if rec.kind == "w":
-            out += [ExternControl.decode(f) for f in parser.feed(rec.data) if f.cmd == "b"]
-    return out
+    return [command for _, command in extern_controls(read_raw(folder / "mk.raw"))]

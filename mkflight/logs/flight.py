@@ -1,0 +1,481 @@
+"""One flight folder as numpy arrays with named columns, for your own analysis (SPEC §6).
+
+:func:`load_flight` reads what a folder holds with the format readers of this package
+(TABLE III/IV, ``events.jsonl``, ``flight.json``, ``mk.raw``) plus the simulator's
+``truth.txt``, and decodes the MK port's bytes as the link does: every ExternControl
+written and every DebugOut read, the latter in SI with the flight's own calibration
+(``config.mk`` in ``flight.json``; :func:`mkflight.mk.units.imu_from_debug`).
+
+Time base: every ``t_s`` (and :attr:`FlightData.imu_t_s`, :attr:`FlightData.laser_t_s`)
+is seconds since :attr:`FlightData.t0_ns` on the flight's clock (host monotonic on the
+vehicle, the simulator's clock in ``sim hover``), which stamps the events, the raw
+records and the truth rows alike, so all arrays plot on one axis. ``t0_ns`` is the
+``start_t_ns`` of the ``mk.raw`` header (the recorders start as the folder is created,
+before the links open), else of ``laser.raw``, else the first event's ``t_ns``, else None.
+The table rows carry no time: a row's time is its event's (``step`` for TABLE IV,
+``scan`` for TABLE III), NaN if it has none; a folder without ``events.jsonl`` (the seed's
+system wrote only the two tables) gets the nominal ``index`` times the step period
+(0.05 s, 0.1 s) instead.
+
+A missing optional file gives an empty array of the same dtype (``truth``, ``info``:
+None); a malformed one the readers' :class:`~mkflight.errors.ReplayError` naming the file
+and the line or byte; a tail cut short by a killed process is dropped and reported in
+:attr:`FlightData.warnings`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import msgspec
+import numpy as np
+import numpy.typing as npt
+
+from mkflight.config import MkConfig
+from mkflight.errors import ProtocolError, ReplayError
+from mkflight.logs import events as events_log
+from mkflight.logs import flight_json, table3, table4
+from mkflight.logs._table import TableData
+from mkflight.logs.events import Event, read_events
+from mkflight.logs.raw import RawRecording, read_raw
+from mkflight.mk.codec import ADDR_FC, Frame, FrameParser, encode_frame
+from mkflight.mk.messages import CMD_DEBUG_ANSWER, CMD_EXTERN, DebugOut, ExternControl
+from mkflight.mk.units import DEFAULT_CALIBRATION, MkCalibration, imu_from_debug
+
+__all__ = [
+    "COMMAND_DTYPE",
+    "SAMPLE_DTYPE",
+    "TRUTH_DTYPE",
+    "FlightData",
+    "event_table",
+    "extern_control_frames",
+    "extern_controls",
+    "load_flight",
+]
+
+NS_PER_S: Final = 1e9
+MK_RAW: Final = "mk.raw"
+LASER_RAW: Final = "laser.raw"
+TRUTH: Final = "truth.txt"  # as mkflight.flight.flight_logs.TRUTH_FILE
+IMU_PERIOD_S: Final = 0.05  # TABLE IV: one row per 50 ms step (the seed's rate)
+LASER_PERIOD_S: Final = 0.1  # TABLE III: one row per 100 ms laser step
+MIN_TEXT: Final = 16  # string columns are at least 'U16'
+
+Array = npt.NDArray[Any]
+
+_COMMAND_FIELDS: Final = ("nick", "roll", "yaw", "gas", "config")
+#: ``commands``: every ExternControl written to the FC, in MK counts as on the wire.
+COMMAND_DTYPE: Final = np.dtype([("t_s", np.float64)] + [(k, np.int64) for k in _COMMAND_FIELDS])
+#: ``samples``: every DebugOut read from the FC, as the link converts it (SPEC §1).
+SAMPLE_DTYPE: Final = np.dtype(
+    [(k, np.float64) for k in ("t_s", "pitch_rad", "roll_rad", "yaw_rad", "acc_x_mps2")]
+    + [(k, np.float64) for k in ("acc_y_mps2", "acc_z_mps2", "battery_v")]
+    + [("gas_counts", np.int64)]
+)
+#: ``truth``: the simulator's vehicle position, world x and y and height up (m).
+TRUTH_DTYPE: Final = np.dtype([(k, np.float64) for k in ("t_s", "x_m", "y_m", "height_m")])
+
+# The fields the flight writes in its 'step' and 'scan' events (flight_logs.py, app.py):
+# always columns, in this order; 'f' numbers (float64: NaN for null, booleans 1.0/0.0),
+# 'U' strings. Other scalar fields found in the events follow as extra columns.
+_STEP_FIELDS: Final = ("x_m", "y_m", "sp_x_m", "sp_y_m", "sp_height_m", "height_m", "vz_up_mps")
+_SCHEMAS: Final[dict[str, tuple[tuple[str, str], ...]]] = {
+    "step": (
+        *((k, "f") for k in (*_STEP_FIELDS, "gas_counts", "battery_v")),
+        *(("phase", "U"), ("action", "U"), ("latency_ms", "f")),
+    ),
+    "scan": tuple(
+        (k, "f") for k in ("index", "step", "seq", "valid", "height_m", "degenerate", "match_ms")
+    ),
+}
+_CAL_KEYS: Final = (  # config.mk keys that MkCalibration.from_config uses
+    *("angle_unit_deg", "acc_nick_counts_per_g", "acc_roll_counts_per_g"),
+    *("acc_z_counts_per_mps2", "acc_z_offset_mps2", "voltage_unit_v", "g_mps2"),
+)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FlightData:
+    """One flight folder's logs (module docstring: the time base, missing files).
+
+    Attributes:
+        path: the folder.
+        t0_ns: the flight clock's ``t_ns`` at ``t_s`` = 0; None for a seed folder.
+        imu: TABLE IV rows, fields named as its header (``"AccX"``, ``"index"``...).
+        imu_t_s: each ``imu`` row's time: its ``step`` event's (the k-th step event is
+            the row of index k), NaN if none; nominal ``index * 0.05`` without events.
+        laser: TABLE III rows, fields named as its header (``"W_Vel.x"``...).
+        laser_t_s: each ``laser`` row's scan time (the ``scan`` event with its index),
+            NaN if none; nominal ``index * 0.1`` without events.
+        steps: the ``step`` events: ``t_s``, the numeric fields (NaN: null), ``phase``
+            and ``action`` as strings.
+        scans: the ``scan`` events: ``t_s`` and the numeric fields.
+        commands: every ExternControl written to the FC (:data:`COMMAND_DTYPE`).
+        samples: every DebugOut read from the FC in SI (:data:`SAMPLE_DTYPE`).
+        truth: the simulator's ``truth.txt`` (:data:`TRUTH_DTYPE`), None if absent.
+        info: ``flight.json`` as a dict (``log_format``, ``config``, ``summary``...).
+        events: every event, as :func:`mkflight.logs.events.read_events` gives them.
+        warnings: what was dropped or assumed (a cut-short tail, with file and offset).
+    """
+
+    path: Path
+    t0_ns: int | None
+    imu: Array
+    imu_t_s: npt.NDArray[np.float64]
+    laser: Array
+    laser_t_s: npt.NDArray[np.float64]
+    steps: Array
+    scans: Array
+    commands: Array
+    samples: Array
+    truth: Array | None
+    info: dict[str, Any] | None
+    events: list[Event]
+    warnings: tuple[str, ...]
+
+    def event_table(self, name: str) -> Array:
+        """The events called ``name`` as a structured array (see :func:`event_table`)."""
+        return event_table(self.events, name, self.t0_ns or 0, self.path / events_log.FILE_NAME)
+
+
+def load_flight(folder: str | Path) -> FlightData:
+    """Read one flight folder into arrays with named columns (module docstring).
+
+    Raises:
+        ReplayError: not a folder, a folder with neither table nor ``flight.json``, a
+            ``flight.json`` of a newer log format, or a malformed file; the message names
+            the file and the line or byte offset.
+    """
+    path = Path(folder)
+    if not path.is_dir():
+        msg = f"{path}: not a flight folder (no such directory)"
+        raise ReplayError(msg)
+    names = (table4.FILE_NAME, table3.FILE_NAME, flight_json.FILE_NAME)
+    if not any((path / n).is_file() for n in names):
+        msg = f"{path}: not a flight folder (none of {', '.join(names)})"
+        raise ReplayError(msg)
+    warnings: list[str] = []
+    info = None
+    if (path / flight_json.FILE_NAME).is_file():  # first: a newer format is refused first
+        info = flight_json.read_flight_json(path / flight_json.FILE_NAME)
+        if info.summary is None:
+            warnings.append(f"{path / flight_json.FILE_NAME}: no summary (flight not ended)")
+    imu = _table(path / table4.FILE_NAME, table4.read_table4, table4.FORMAT.dtype, warnings)
+    laser = _table(path / table3.FILE_NAME, table3.read_table3, table3.FORMAT.dtype, warnings)
+    events, events_found = _events(path / events_log.FILE_NAME, warnings)
+    mk = _raw(path / MK_RAW, warnings)
+    laser_raw = _raw(path / LASER_RAW, warnings)
+    t0_ns: int | None = None
+    for rec in (mk, laser_raw):
+        if t0_ns is None and rec is not None:
+            t0_ns = rec.header.start_t_ns
+    if t0_ns is None and events:
+        t0_ns = events[0].t_ns
+    t0 = t0_ns or 0
+    events_path = path / events_log.FILE_NAME
+    steps = event_table(events, "step", t0, events_path)
+    scans = event_table(events, "scan", t0, events_path)
+    if events_found:
+        imu_t_s = _by_index(imu["index"], dict(enumerate(steps["t_s"].tolist(), start=1)))
+        laser_t_s = _by_index(laser["index"], _scan_times(scans))
+    else:
+        imu_t_s = imu["index"] * IMU_PERIOD_S
+        laser_t_s = laser["index"] * LASER_PERIOD_S
+    commands = np.zeros(0, COMMAND_DTYPE)
+    samples = np.zeros(0, SAMPLE_DTYPE)
+    if mk is not None:
+        commands = _commands(mk, t0, warnings)
+        cal = _calibration(info, path / flight_json.FILE_NAME)
+        samples = _samples(mk, t0, cal, warnings)
+        if info is None and len(samples):
+            warnings.append(f"{path}: no flight.json: DebugOut converted with the defaults")
+    truth = _read_truth(path / TRUTH, t0_ns, warnings) if (path / TRUTH).is_file() else None
+    return FlightData(
+        path=path,
+        t0_ns=t0_ns,
+        imu=imu,
+        imu_t_s=np.asarray(imu_t_s, dtype=np.float64),
+        laser=laser,
+        laser_t_s=np.asarray(laser_t_s, dtype=np.float64),
+        steps=steps,
+        scans=scans,
+        commands=commands,
+        samples=samples,
+        truth=truth,
+        info=None if info is None else asdict(info),
+        events=events,
+        warnings=tuple(warnings),
+    )
+
+
+def _line_count(path: Path) -> int:
+    """The number of the file's last line (the one a killed writer cut short)."""
+    with path.open("rb") as f:
+        return sum(chunk.count(b"\n") for chunk in iter(lambda: f.read(1 << 16), b"")) + 1
+
+
+def _table(
+    path: Path, read: Callable[[Path], TableData], dtype: np.dtype[Any], warnings: list[str]
+) -> Array:
+    if not path.is_file():
+        return np.zeros(0, dtype)
+    data = read(path)
+    if data.truncated:
+        warnings.append(f"{path}:{_line_count(path)}: incomplete last row dropped")
+    rows: Array = data.rows
+    return rows
+
+
+def _events(path: Path, warnings: list[str]) -> tuple[list[Event], bool]:
+    if not path.is_file():
+        return [], False
+    data = read_events(path)
+    if data.truncated:
+        warnings.append(f"{path}:{_line_count(path)}: incomplete last event dropped")
+    return data.events, True
+
+
+def _raw(path: Path, warnings: list[str]) -> RawRecording | None:
+    if not path.is_file():
+        return None
+    rec = read_raw(path)
+    if rec.warning is not None:
+        warnings.append(rec.warning)
+    return rec
+
+
+def _by_index(index: Array, times: dict[int, float]) -> npt.NDArray[np.float64]:
+    return np.array([times.get(int(i), math.nan) for i in index], dtype=np.float64)
+
+
+def _scan_times(scans: Array) -> dict[int, float]:
+    return {
+        int(i): float(t)
+        for i, t in zip(scans["index"].tolist(), scans["t_s"].tolist(), strict=True)
+        if math.isfinite(i)
+    }
+
+
+def _kind(value: Any) -> str | None:
+    """A JSON value's column kind: 'f' number or boolean, 'U' string, '' null, None other."""
+    if value is None:
+        return ""
+    if isinstance(value, bool | float) or (isinstance(value, int) and abs(value) < 2**1023):
+        return "f"
+    if isinstance(value, str):
+        return "U"
+    return None
+
+
+def event_table(events: Sequence[Event], name: str, t0_ns: int, path: Path | str) -> Array:
+    """The events called ``name`` as a structured array: ``t_s`` and one field per key.
+
+    ``t_s`` is ``(t_ns - t0_ns)`` in seconds. The flight's own ``step`` and ``scan``
+    fields are always columns, in a fixed order; any other key whose values are all
+    numbers (booleans too) or all strings follows. Numbers are float64 (null: NaN,
+    booleans 1.0/0.0), strings at least 'U16' (null: ""); lists, objects and keys of
+    mixed types stay in the :class:`Event` records only.
+
+    Raises:
+        ReplayError: a ``step``/``scan`` field of the wrong type (names ``path``, the
+            event's ``t_ns`` and the field).
+    """
+    chosen = [e for e in events if e.event == name]
+    schema = dict(_SCHEMAS.get(name, ()))
+    found: dict[str, set[str]] = {}
+    for e in chosen:
+        for key, value in e.fields.items():
+            kind = _kind(value)
+            if key in schema and kind not in ("", schema[key]):
+                want = "number" if schema[key] == "f" else "string"
+                msg = f"{path}: {name} event at t_ns {e.t_ns}: {key} = {value!r} is not a {want}"
+                raise ReplayError(msg)
+            if key not in schema and key not in ("", "t_s"):
+                found.setdefault(key, set()).add("?" if kind is None else kind)
+    columns = dict(schema)
+    for key, kinds in found.items():
+        kinds.discard("")
+        if len(kinds) <= 1 and "?" not in kinds:
+            columns[key] = kinds.pop() if kinds else "f"
+    dtype: list[tuple[str, Any]] = [("t_s", np.float64)]
+    for key, kind in columns.items():
+        if kind == "f":
+            dtype.append((key, np.float64))
+        else:
+            texts = [v for e in chosen if isinstance(v := e.fields.get(key), str)]
+            width = max([MIN_TEXT, *map(len, texts)])
+            dtype.append((key, f"U{width}"))
+    out = np.zeros(len(chosen), dtype)
+    out["t_s"] = [_since(e.t_ns, t0_ns, path) for e in chosen]
+    for key, kind in columns.items():
+        values = [e.fields.get(key) for e in chosen]
+        if kind == "f":
+            out[key] = [math.nan if v is None else float(v) for v in values]
+        else:
+            out[key] = ["" if v is None else v for v in values]
+    return out
+
+
+def _since(t_ns: int, t0_ns: int, path: Path | str) -> float:
+    """Seconds from ``t0_ns`` to ``t_ns``, or ReplayError for a time beyond any clock."""
+    try:
+        return (t_ns - t0_ns) / NS_PER_S
+    except OverflowError as err:
+        msg = f"{path}: time {t_ns} ns is out of range"
+        raise ReplayError(msg) from err
+
+
+def _frames(recording: RawRecording, kind: str) -> Iterator[tuple[int, Frame]]:
+    """The good frames of one direction, each with the ``t_ns`` of the record ending it.
+
+    A port (re)opened or lost drops a frame left incomplete, as the link's parser does.
+    """
+    parser = FrameParser()
+    for rec in recording.records:
+        if rec.kind == kind:
+            for frame in parser.feed(rec.data):
+                yield rec.t_ns, frame
+        elif rec.kind in "oc":
+            parser.reset()
+
+
+def extern_control_frames(recording: RawRecording) -> list[tuple[int, bytes]]:
+    r"""Every ExternControl written to the FC in an ``mk.raw``: ``(t_ns, frame bytes)``.
+
+    The frames are the ``'#' 'b' 'b' ... '\r'`` ones (address FC, command 'b') of the
+    write ('w') records, in order; a frame split over several records carries the
+    ``t_ns`` of the one that completes it. The bytes are the frame as on the wire: the
+    parser keeps only the decoded payload, and re-encoding it is exact (4 payload
+    characters are 3 bytes and back, the checksum is summed over the characters).
+    """
+    return [
+        (t_ns, encode_frame(f.addr, f.cmd, f.payload))
+        for t_ns, f in _frames(recording, "w")
+        if f.addr == ADDR_FC and f.cmd == CMD_EXTERN
+    ]
+
+
+def extern_controls(recording: RawRecording) -> list[tuple[int, ExternControl]]:
+    """Every ExternControl written to the FC in an ``mk.raw``, decoded: ``(t_ns, command)``.
+
+    The frames of :func:`extern_control_frames`; one too short to decode is left out.
+    """
+    return _extern_controls(recording)[0]
+
+
+def _extern_controls(recording: RawRecording) -> tuple[list[tuple[int, ExternControl]], int]:
+    """The decoded commands, and how many 'b' frames were too short to decode."""
+    out: list[tuple[int, ExternControl]] = []
+    bad = 0
+    for t_ns, f in _frames(recording, "w"):
+        if f.addr == ADDR_FC and f.cmd == CMD_EXTERN:
+            try:
+                out.append((t_ns, ExternControl.decode(f)))
+            except ProtocolError:
+                bad += 1
+    return out, bad
+
+
+def _commands(mk: RawRecording, t0_ns: int, warnings: list[str]) -> Array:
+    decoded, bad = _extern_controls(mk)
+    if bad:
+        warnings.append(f"{mk.path}: {bad} ExternControl frames too short to decode")
+    out = np.zeros(len(decoded), COMMAND_DTYPE)
+    out["t_s"] = [(t - t0_ns) / NS_PER_S for t, _ in decoded]
+    for key in _COMMAND_FIELDS:
+        out[key] = [int(getattr(c, key)) for _, c in decoded]
+    return out
+
+
+def _calibration(info: flight_json.FlightInfo | None, path: Path) -> MkCalibration:
+    """The flight's own MK calibration (``config.mk``), defaults for keys it lacks."""
+    if info is None:
+        return DEFAULT_CALIBRATION
+    mk = info.config.get("mk", {})
+    if not isinstance(mk, dict):
+        msg = f"{path}: config.mk: expected an object, got {type(mk).__name__}"
+        raise ReplayError(msg)
+    try:
+        cfg = msgspec.convert({k: mk[k] for k in _CAL_KEYS if k in mk}, type=MkConfig)
+    except msgspec.ValidationError as err:
+        msg = f"{path}: config.mk: {err}"
+        raise ReplayError(msg) from err
+    return MkCalibration.from_config(cfg)
+
+
+def _samples(mk: RawRecording, t0_ns: int, cal: MkCalibration, warnings: list[str]) -> Array:
+    rows: list[tuple[float | int, ...]] = []
+    bad = 0
+    for t_ns, f in _frames(mk, "r"):
+        if f.addr != ADDR_FC or f.cmd != CMD_DEBUG_ANSWER:
+            continue
+        try:
+            s = imu_from_debug(DebugOut.decode(f), t_ns, cal)
+        except ProtocolError:
+            bad += 1
+            continue
+        rows.append(
+            (
+                (t_ns - t0_ns) / NS_PER_S,
+                s.pitch_rad,
+                s.roll_rad,
+                s.yaw_rad,
+                s.acc_x_mps2,
+                s.acc_y_mps2,
+                s.acc_z_mps2,
+                s.battery_v,
+                s.gas_counts,
+            )
+        )
+    if bad:
+        warnings.append(f"{mk.path}: {bad} DebugOut frames too short to decode")
+    return np.array(rows, dtype=SAMPLE_DTYPE)
+
+
+def _read_truth(path: Path, t0_ns: int | None, warnings: list[str]) -> Array:
+    """``truth.txt`` (mkflight.sim.world): ``t x y z`` rows, ``t`` s since ``# t0_ns N``."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        msg = f"{path}: cannot read: {err}"
+        raise ReplayError(msg) from err
+    lines = text.split("\n")
+    if lines[-1]:
+        warnings.append(f"{path}:{len(lines)}: incomplete last row dropped")
+    origin_ns = 0  # no comment: 't' is the clock's own seconds (sim hover)
+    rows: list[tuple[float, ...]] = []
+    for line_no, line in enumerate(lines[:-1], start=1):
+        words = line.split()
+        if not words or (line_no == 1 and words == ["t", "x", "y", "z"]):
+            continue
+        if words[0] == "#":
+            if len(words) > 2 and words[1] == "t0_ns":
+                origin_ns = _parse_int(words[2], path, line_no)
+            continue
+        try:
+            values = tuple(float(w) for w in words)
+        except ValueError:
+            values = ()
+        if len(values) != 4:
+            msg = f"{path}:{line_no}: expected 't x y z' numbers, got {line[:80]!r}"
+            raise ReplayError(msg)
+        rows.append(values)
+    out = np.array(rows, dtype=np.float64).reshape(-1, 4)
+    shift_s = _since(origin_ns, t0_ns or 0, path)
+    truth = np.zeros(len(out), TRUTH_DTYPE)
+    truth["t_s"] = out[:, 0] + shift_s
+    for i, key in enumerate(("x_m", "y_m", "height_m"), start=1):
+        truth[key] = out[:, i]
+    return truth
+
+
+def _parse_int(text: str, path: Path, line_no: int) -> int:
+    try:
+        return int(text)
+    except ValueError as err:
+        msg = f"{path}:{line_no}: t0_ns {text!r} is not an integer"
+        raise ReplayError(msg) from err
