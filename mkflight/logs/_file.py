@@ -18,6 +18,9 @@ class LineFile:
     def __init__(self, path: Path, encoding: str) -> None:
         self.path = path
         self._file: TextIO | None = path.open("x", encoding=encoding, newline="\n")
+        #: flush every line (a flight: a killed process loses nothing); a replay, which
+        #: can write its folder again, sets it False and writes in blocks
+        self.flush_each_line = True
 
     def write_line(self, line: str) -> None:
         """Append ``line`` (with its newline) and flush it.
@@ -29,7 +32,8 @@ class LineFile:
             msg = f"{self.path}: writer is closed"
             raise RuntimeError(msg)
         self._file.write(line)
-        self._file.flush()
+        if self.flush_each_line:
+            self._file.flush()
 
     @property
     def closed(self) -> bool:

@@ -13,10 +13,11 @@ which :func:`read_events` drops and reports (``truncated``).
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import msgspec
 
 from mkflight.errors import ReplayError
 from mkflight.logs._file import LineFile
@@ -33,15 +34,9 @@ class Event:
     fields: dict[str, Any]
 
 
-def _finite(obj: Any) -> Any:
-    """Replace non-finite floats by None, recursively (strict JSON)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {str(k): _finite(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_finite(v) for v in obj]
-    return obj
+#: msgspec's encoder: ~7x faster than ``json.dumps`` (an event every step matters in a
+#: replay at 200x); it writes non-finite floats as ``null`` and keeps the key order.
+_ENCODER = msgspec.json.Encoder()
 
 
 class EventsWriter(LineFile):
@@ -64,8 +59,13 @@ class EventsWriter(LineFile):
         if "t_ns" in fields or "event" in fields:
             msg = f"{self.path}: field names t_ns and event are reserved"
             raise ValueError(msg)
-        record = {"t_ns": int(t_ns), "event": event, **_finite(fields)}
-        self.write_line(json.dumps(record, allow_nan=False, separators=(",", ":")) + "\n")
+        record = {"t_ns": int(t_ns), "event": event, **fields}
+        try:
+            line = _ENCODER.encode(record)
+        except (TypeError, msgspec.EncodeError) as err:  # an object JSON cannot represent
+            msg = f"{self.path}: event {event!r}: {err}"
+            raise TypeError(msg) from err
+        self.write_line(line.decode("utf-8") + "\n")
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,6 +100,9 @@ def read_events(path: str | Path) -> EventsData:
             obj = json.loads(line)
         except json.JSONDecodeError as err:
             msg = f"{path}:{line_no}: not JSON: {err.msg}"
+            raise ReplayError(msg) from err
+        except RecursionError as err:  # a line nested thousands deep: not an event
+            msg = f"{path}:{line_no}: nested too deeply to be an event"
             raise ReplayError(msg) from err
         if not isinstance(obj, dict):
             msg = f"{path}:{line_no}: expected an object, got {type(obj).__name__}"

@@ -59,6 +59,8 @@ __all__ = [
     "RawRecord",
     "RawRecorder",
     "RawRecording",
+    "create_buffered",
+    "create_unbuffered",
     "read_raw",
 ]
 
@@ -80,9 +82,14 @@ _MAX_PAYLOAD_BYTES: Final = 0xFFFF_FFFF
 FileOpener = Callable[[Path], BinaryIO]
 
 
-def _create_unbuffered(path: Path) -> BinaryIO:
+def create_unbuffered(path: Path) -> BinaryIO:
     """Create ``path`` for binary writing, unbuffered: each ``write`` is one syscall."""
     return path.open("xb", buffering=0)
+
+
+def create_buffered(path: Path) -> BinaryIO:
+    """Create ``path`` for binary writing in blocks (a replay's: it can be written again)."""
+    return path.open("xb")
 
 
 @dataclass(frozen=True, slots=True)
@@ -181,7 +188,7 @@ class RawRecorder:
         *,
         clock: Clock | None = None,
         wall_clock_ns: Callable[[], int] = time.time_ns,
-        opener: FileOpener = _create_unbuffered,
+        opener: FileOpener = create_unbuffered,
     ) -> None:
         self.path = Path(path)
         self.port_name = port_name

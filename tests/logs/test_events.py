@@ -49,3 +49,10 @@ def test_truncated_last_line_and_malformed_line(tmp_path: Path) -> None:
     path.write_text('{"t_ns": 1.5, "event": "a"}\n')
     with pytest.raises(ReplayError, match=f"{FILE_NAME}:1: needs an integer t_ns"):
         read_events(path)
+
+
+def test_a_line_nested_too_deep_is_a_replay_error_not_a_crash(tmp_path: Path) -> None:
+    path = tmp_path / "events.jsonl"
+    path.write_text('{"t_ns": 1, "event": "x"}\n' + "[" * 100_000 + "]" * 100_000 + "\n")
+    with pytest.raises(ReplayError, match=r"events\.jsonl:2: nested too deeply"):
+        read_events(path)
