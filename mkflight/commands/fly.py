@@ -8,6 +8,8 @@ import sys
 from datetime import UTC, datetime
 from pathlib import Path
 
+import msgspec
+
 from mkflight.config import Config, load_config
 from mkflight.errors import ConfigError, FlightError, MkflightError, PortNotFoundError
 from mkflight.flight.flight_logs import TRUTH_FILE, folder_in_use
@@ -169,6 +171,10 @@ def cmd_fly(
             if port is not None and not Path(port).exists():
                 msg = f"{what} port {port} ({flag}): no such device"
                 raise PortNotFoundError(msg)
+    if height_m is not None:  # in the config flown, so flight.json (and a replay) has it
+        cfg = msgspec.structs.replace(
+            cfg, control=msgspec.structs.replace(cfg.control, takeoff_height_m=height_m)
+        )
     folder = _folder(cfg, log_dir)
     code, reason, summary = asyncio.run(
         _fly(

@@ -99,6 +99,7 @@ class FlightOptions:
     duration_s: float | None = None
     status_tty: bool = False
     stop_deadline_s: float = STOP_DEADLINE_S
+    durable_logs: bool = True  # every row to the kernel at once (False: a replay's)
 
 
 @dataclass(slots=True)
@@ -172,6 +173,7 @@ class FlightApp:
             laser_port=self.opts.laser_port,
             clock=self.clock,
             on_error=self._log_failed,
+            durable=self.opts.durable_logs,
         )
 
     def _log_failed(self, err: OSError) -> None:
@@ -278,9 +280,25 @@ class FlightApp:
         best = min(self._attitude, key=lambda a: abs(a[0] - t_ns))
         return best[1], best[2]
 
+    async def before_ready(self) -> None:
+        """Do nothing (in flight); a replay waits here until the recorded READY time."""
+
+    def scan_wanted(self, seq: int) -> bool:
+        """Whether the laser task matches scan ``seq``: here, always.
+
+        A replay skips what the flight never used: the driver hands out only the newest
+        scan, so a busy matcher skipped one now and then.
+        """
+        return True
+
+    def laser_result_due(self, result: LaserResult, step: int) -> bool:
+        """Whether ``result`` may enter at step number ``step``: always (a replay pins it)."""
+        return True
+
     def _apply_laser_results(self, now_ns: int) -> None:
         core = self.core
-        while self.pending:
+        step = core.counters.imu_steps + 1
+        while self.pending and self.laser_result_due(self.pending[0], step):
             r = self.pending.popleft()
             row = core.laser_step(
                 r.pose, r.height_m, t_ns=r.scan_t_ns, degenerate=r.degenerate, arrival_ns=now_ns
@@ -291,9 +309,12 @@ class FlightApp:
                 r.scan_t_ns,
                 "scan",
                 index=None if row is None else row.index,
-                step=core.counters.imu_steps + 1,
+                step=step,
                 seq=r.seq,
                 valid=r.pose is not None,
+                x_m=None if r.pose is None else r.pose.x_m,
+                y_m=None if r.pose is None else r.pose.y_m,
+                yaw_rad=None if r.pose is None else r.pose.yaw_rad,
                 height_m=r.height_m,
                 degenerate=r.degenerate,
                 match_ms=round(r.compute_s * 1000, 3),
@@ -423,8 +444,10 @@ class FlightApp:
                 gc.collect()
                 gc.freeze()  # imports and pre-flight objects: never walked again in flight
                 self.gc_watch.install()
+                await self.before_ready()
                 self.notifier.ready()
                 self.start_ns = self.clock.now_ns()
+                self.event(self.start_ns, "ready")  # steps use DebugOut from here on
                 error = await self._run_tasks()
         except Exception as err:  # every failure leaves through the shutdown
             error = err

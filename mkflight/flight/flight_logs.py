@@ -23,7 +23,7 @@ from mkflight.errors import PreflightError
 from mkflight.flight.step import ImuStepOutput
 from mkflight.logs.events import EventsWriter
 from mkflight.logs.flight_json import FlightInfo, new_flight_info, with_summary, write_flight_json
-from mkflight.logs.raw import RawRecorder
+from mkflight.logs.raw import RawRecorder, create_buffered, create_unbuffered
 from mkflight.logs.table3 import Table3Row, Table3Writer
 from mkflight.logs.table4 import Table4Writer
 from mkflight.msgs import ImuSample
@@ -49,8 +49,13 @@ class FlightLogs:
         laser_port: str,
         clock: Clock,
         on_error: Callable[[OSError], None],
+        durable: bool = True,
     ) -> None:
         """Create the folder's files (the pre-flight check 'log dir').
+
+        ``durable``: every row, event and raw record reaches the kernel as it is written
+        (SPEC §6: a killed process leaves readable logs); a replay, which can always be
+        run again, passes False and writes in blocks (a third less CPU per step).
 
         Raises:
             PreflightError: the folder is not empty, or cannot be written.
@@ -69,8 +74,16 @@ class FlightLogs:
             self.t3 = self._keep(Table3Writer(folder))
             self.t4 = self._keep(Table4Writer(folder))
             self.events = self._keep(EventsWriter(folder))
-            self.mk_raw = self._keep(RawRecorder(folder / "mk.raw", mk_port, clock=clock))
-            self.laser_raw = self._keep(RawRecorder(folder / "laser.raw", laser_port, clock=clock))
+            opener = create_unbuffered if durable else create_buffered
+            self.mk_raw = self._keep(
+                RawRecorder(folder / "mk.raw", mk_port, clock=clock, opener=opener)
+            )
+            self.laser_raw = self._keep(
+                RawRecorder(folder / "laser.raw", laser_port, clock=clock, opener=opener)
+            )
+            if not durable:
+                for table in (self.t3, self.t4, self.events):
+                    table.flush_each_line = False
         except OSError as err:
             self._close_all()
             detail = f"{folder}: {err.strerror or err}"

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import time
 from typing import TYPE_CHECKING
 
 import structlog
@@ -53,6 +52,7 @@ async def mk_task(app: FlightApp) -> None:
             out = app.step(sample)  # its command's write may find the port gone
         except LinkError as err:
             if link.error is not None:  # the port itself failed: try to hand back
+                app.mark("mk", "c", str(err))
                 with contextlib.suppress(LinkError, TimeoutError):
                     async with asyncio.timeout(FC_REOPEN_S):
                         await link.reopen(max_wait_s=FC_REOPEN_S)  # releases first
@@ -88,6 +88,8 @@ async def laser_task(app: FlightApp) -> None:
             await app.driver.reopen(max_wait_s=30.0)
             app.event(app.clock.now_ns(), "laser_reopened")
             continue
+        if not app.scan_wanted(scan.seq):
+            continue
         pitch, roll = app.attitude_at(scan.t_ns)
         try:
             result = await app.worker.process(scan, pitch, roll)
@@ -102,6 +104,7 @@ async def laser_task(app: FlightApp) -> None:
 async def watchdog_task(app: FlightApp) -> None:
     """Duration, stop deadline, status line and STATUS: a timer that only watches."""
     next_status = next_ppm = 0.0
+    loop = asyncio.get_running_loop()  # its time: the lock-step clock in a replay
     while True:
         await asyncio.sleep(WATCH_PERIOD_S)
         now = app.clock.now_ns()
@@ -110,10 +113,10 @@ async def watchdog_task(app: FlightApp) -> None:
         if duration_s is not None and elapsed_s >= duration_s and app.stop_request is None:
             app.request_stop(StopRequest.DURATION, f"--duration {duration_s:g} s")
         check_deadline(app)
-        if time.monotonic() >= next_ppm and app.link is not None:
-            next_ppm = time.monotonic() + PPM_PERIOD_S
+        if loop.time() >= next_ppm and app.link is not None:
+            next_ppm = loop.time() + PPM_PERIOD_S
             with contextlib.suppress(LinkError):  # a dead port is the MK task's to report
                 app.link.request_ppm()
-        if time.monotonic() >= next_status:
-            next_status = time.monotonic() + STATUS_PERIOD_S
+        if loop.time() >= next_status:
+            next_status = loop.time() + STATUS_PERIOD_S
             app.show_status()

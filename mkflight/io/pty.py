@@ -113,6 +113,25 @@ class PtyDevice:
         """Forget what the client sent that has not been read yet."""
         self._rx.clear()
 
+    def detach(self) -> None:
+        """Stop reading on the loop: the owner drains with :meth:`drop_client_bytes`."""
+        if self._master >= 0:
+            with contextlib.suppress(RuntimeError, ValueError):
+                asyncio.get_running_loop().remove_reader(self._master)
+
+    def drop_client_bytes(self) -> int:
+        """Read and drop what the client wrote (never blocks); return how many bytes."""
+        n = 0
+        while self._master >= 0:
+            try:
+                data = os.read(self._master, 65536)
+            except OSError:  # EAGAIN: nothing (more); EIO: no client
+                break
+            if not data:
+                break
+            n += len(data)
+        return n
+
     async def drain(self) -> None:
         """Writes are immediate: nothing to wait for."""
 

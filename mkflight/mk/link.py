@@ -319,6 +319,11 @@ class MkLink:
         return self._error
 
     @property
+    def closed(self) -> bool:
+        """:meth:`close` has stopped the reader: nothing more is read from the port."""
+        return self._closing is not None and self._reader is None
+
+    @property
     def control_blocked(self) -> str | None:
         """Why commands that take control are refused (None: they are allowed)."""
         return self._tx.blocked

@@ -169,10 +169,11 @@ class UrgDriver:
         if self._error is None:
             with contextlib.suppress(LinkError, ProtocolError, TimeoutError):
                 await self._request(simple_command("QT"), timeout_s=0.3)
-        if self._reader is not None:
-            self._reader.cancel()
+        reader, self._reader = self._reader, None
+        if reader is not None:
+            reader.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
-                await self._reader
+                await reader
         with contextlib.suppress(LinkError, OSError):
             await self._stream.close()
         self._fail(LinkError(f"{self.port}: driver closed"))
@@ -348,6 +349,11 @@ class UrgDriver:
     def error(self) -> LinkError | None:
         """The error that ended the driver, if any."""
         return self._error
+
+    @property
+    def closed(self) -> bool:
+        """:meth:`close` has stopped the reader: nothing more is read from the port."""
+        return self._closed and self._reader is None
 
     async def next_scan(self, timeout_s: float | None = None) -> Scan:
         """The newest scan (older ones not picked up are dropped and counted).
