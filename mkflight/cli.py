@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 from typing import NoReturn
 
 from mkflight import __version__, cli_types
-from mkflight.cli_flight import add_flight_commands
+from mkflight.cli_flight import add_flight_commands, add_replay_command
 from mkflight.errors import ConfigError, MkflightError, PortNotFoundError
 
 EXIT_OK = 0
@@ -158,6 +158,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     add_flight_commands(commands, config_opts, _command, _Parser, _CONFIG_ARGS)
+    add_replay_command(commands, _command, cli_types.positive)
 
     calibrate = commands.add_parser("calibrate", help="calibrations from measurements")
     calibrate_commands = calibrate.add_subparsers(

@@ -134,3 +134,60 @@ def add_flight_commands(
             **config_args,
         )
     )
+
+
+def add_replay_command(
+    commands: Any,
+    command: Callable[..., Runner],
+    positive: Callable[[str], float],
+) -> None:
+    """Add ``replay`` (SPEC §6, §7)."""
+    replay = commands.add_parser(
+        "replay",
+        help="replay a recorded flight through mock serial ports into the daemon",
+        description="Plays a flight folder's recorded FC and URG bytes (mk.raw, laser.raw) "
+        "through two pseudo-terminals into the unchanged flight daemon, on a lock-step clock "
+        "that gives every byte its recorded time, and writes a new flight folder. With the "
+        "recorded configuration the ExternControl bytes and both tables must come out "
+        "identical (the determinism check: exit 1 and the first difference if not); with "
+        "--set it shows what the controller would have sent instead. The scan poses are "
+        "the recorded ones unless --set changes the mk, laser or scanmatch sections or "
+        "--rematch is given.",
+    )
+    replay.add_argument("log_dir", metavar="LOGDIR", help="the recorded flight folder")
+    pace = replay.add_mutually_exclusive_group()
+    pace.add_argument(
+        "--speed",
+        type=positive,
+        metavar="X",
+        help="play at X times the recorded pace (1 = real time)",
+    )
+    pace.add_argument(
+        "--fast", action="store_true", help="as fast as the daemon takes it (the default)"
+    )
+    replay.add_argument(
+        "--set",
+        metavar="KEY=VALUE",
+        action="append",
+        default=[],
+        dest="overrides",
+        help="what if: override a key of the recorded config, e.g. --set control.kp_xy=1.2",
+    )
+    replay.add_argument(
+        "--out", metavar="DIR", help="the new flight folder (default LOGDIR-replay)"
+    )
+    replay.add_argument(
+        "--rematch", action="store_true", help="run the scan matcher again on the replayed scans"
+    )
+    replay.add_argument("--json", action="store_true", help="the report as one JSON object")
+    replay.set_defaults(
+        func=command(
+            "mkflight.commands.replay:cmd_replay",
+            log_dir="log_dir",
+            speed="speed",
+            overrides="overrides",
+            out="out",
+            rematch="rematch",
+            as_json="json",
+        )
+    )

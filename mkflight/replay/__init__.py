@@ -1,0 +1,8 @@
+"""``mkflight replay``: recorded flights back through mock serial ports (SPEC §6).
+
+:mod:`~mkflight.replay.inputs` reads a flight folder, :mod:`~mkflight.replay.vloop` is the
+lock-step clock, :mod:`~mkflight.replay.feeder` the mock devices,
+:mod:`~mkflight.replay.daemon` the daemon as a replay runs it,
+:mod:`~mkflight.replay.compare` the determinism check, :mod:`~mkflight.replay.seed` the
+seed's tables and :mod:`~mkflight.replay.run` puts them together.
+"""

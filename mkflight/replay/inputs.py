@@ -1,0 +1,199 @@
+"""What a recorded flight gives a replay: the input timeline and the recorded decisions.
+
+Pure reading, no I/O beyond the files (SPEC §6). From a flight folder:
+
+* ``mk.raw`` and ``laser.raw`` -> one time-ordered list of :class:`Input`: every chunk
+  the daemon *read* ('r', played back to it), every port loss ('c', the pty vanishes)
+  and re-open ('o', a fresh pty appears). What the daemon *wrote* is not input; the
+  ExternControl frames among it are what the replay must reproduce.
+* ``events.jsonl`` -> what the original daemon's environment decided and the recording
+  must therefore name: the operator's stop requests (SIGINT, SIGTERM, ``--duration``: an
+  ``'s'`` input at its time); per scan, the scan matcher's result and the step it entered
+  (:class:`RecordedScan`; the matcher ran in its own process, so where a pose landed
+  depended on that process's timing); and the time of READY (``ready``: the pre-flight
+  took as long as spawning the matcher took, and the first step is the first DebugOut
+  after it).
+* ``flight.json`` -> the configuration flown.
+
+Bad input is a :class:`~mkflight.errors.ReplayError` naming the file and the byte offset
+or line; a tail cut short by a killed process is dropped with a warning.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mkflight.errors import ReplayError
+from mkflight.logs.events import read_events
+from mkflight.logs.flight_json import read_flight_json
+from mkflight.logs.raw import RawRecording, read_raw
+from mkflight.msgs import Pose2D
+from mkflight.safety.failsafe import StopRequest
+
+PORTS = ("mk", "laser")
+RAW_FILES = {"mk": "mk.raw", "laser": "laser.raw"}
+#: Stop requests that came from outside the daemon: the replay repeats them.
+EXTERNAL_STOPS = frozenset({StopRequest.SIGINT, StopRequest.SIGTERM, StopRequest.DURATION})
+
+
+@dataclass(frozen=True, slots=True)
+class Input:
+    """One thing that happened to the daemon from outside, at ``t_ns``.
+
+    ``kind``: 'r' bytes arrive on ``port``; 'c' the port is lost; 'o' it is (re)opened;
+    's' the operator asks for a stop (``stop``, ``reason``).
+    """
+
+    t_ns: int
+    port: str
+    kind: str
+    data: bytes = b""
+    stop: StopRequest | None = None
+    reason: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class RecordedScan:
+    """A scan matcher result as the original flight applied it (a ``scan`` event)."""
+
+    t_ns: int
+    seq: int
+    step: int | None
+    pose: Pose2D | None
+    height_m: float | None
+    degenerate: bool
+
+
+@dataclass(slots=True)
+class RecordedFlight:
+    """A flight folder read for replay (see the module docstring)."""
+
+    folder: Path
+    config: dict[str, Any]
+    mkflight_version: str
+    inputs: list[Input]
+    start_ns: int
+    end_ns: int
+    recordings: dict[str, RawRecording]
+    scans: dict[int, RecordedScan]
+    ready_ns: int | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def has_poses(self) -> bool:
+        """The events name each scan's pose (flights recorded before did not)."""
+        return bool(self.scans)
+
+    @property
+    def duration_s(self) -> float:
+        """Recorded time from the first to the last record, s."""
+        return (self.end_ns - self.start_ns) / 1e9
+
+
+def _read_info(folder: Path) -> tuple[dict[str, Any], str]:
+    path = folder / "flight.json"
+    if not path.exists():
+        msg = f"{path}: missing (the configuration flown is needed to replay)"
+        raise ReplayError(msg)
+    info = read_flight_json(path)  # names the file; refuses a newer log format
+    return info.config, info.mkflight_version
+
+
+def _pose(fields: dict[str, Any], t_ns: int) -> Pose2D | None:
+    x, y, yaw = fields.get("x_m"), fields.get("y_m"), fields.get("yaw_rad")
+    if not all(isinstance(v, int | float) for v in (x, y, yaw)):
+        return None
+    return Pose2D(t_ns, float(x), float(y), float(yaw))  # type: ignore[arg-type]
+
+
+def _events(
+    folder: Path, warnings: list[str]
+) -> tuple[dict[int, RecordedScan], list[Input], int | None]:
+    path = folder / "events.jsonl"
+    if not path.exists():
+        warnings.append(f"{path}: missing: scans are matched again, no stop is repeated")
+        return {}, [], None
+    data = read_events(path)
+    if data.truncated:
+        warnings.append(f"{path}: last line cut short: dropped")
+    scans: dict[int, RecordedScan] = {}
+    stops: list[Input] = []
+    ready_ns: int | None = None
+    for ev in data.events:
+        f = ev.fields
+        if ev.event == "ready" or (ev.event == "preflight" and ready_ns is None):
+            ready_ns = ev.t_ns  # flights before the 'ready' event: the pre-flight's end
+        elif ev.event == "scan" and "x_m" in f and isinstance(f.get("seq"), int):
+            step = f.get("step")
+            height = f.get("height_m")
+            scans[f["seq"]] = RecordedScan(
+                t_ns=ev.t_ns,
+                seq=f["seq"],
+                step=step if isinstance(step, int) else None,
+                pose=_pose(f, ev.t_ns),
+                height_m=float(height) if isinstance(height, int | float) else None,
+                degenerate=bool(f.get("degenerate", False)),
+            )
+        elif ev.event == "stop":
+            try:
+                request = StopRequest(f.get("request"))
+            except ValueError:
+                continue
+            if request in EXTERNAL_STOPS:
+                stops.append(Input(ev.t_ns, "", "s", stop=request, reason=str(f.get("reason"))))
+    return scans, stops, ready_ns
+
+
+def _port_inputs(port: str, rec: RawRecording) -> list[Input]:
+    out: list[Input] = []
+    for r in rec.records:
+        if r.kind == "r":
+            out.append(Input(r.t_ns, port, "r", r.data))
+        elif r.kind in "oc":
+            out.append(Input(r.t_ns, port, r.kind, r.data))
+    return out
+
+
+def read_recorded_flight(folder: str | Path) -> RecordedFlight:
+    """Read a flight folder for :func:`mkflight.replay.run.replay_flight`.
+
+    Raises:
+        ReplayError: not a folder, a file missing or unreadable, another format version;
+            the message names the file (and byte offset or line).
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        msg = f"{folder}: not a flight folder (no such directory)"
+        raise ReplayError(msg)
+    config, version = _read_info(folder)
+    warnings: list[str] = []
+    recordings: dict[str, RawRecording] = {}
+    for port in PORTS:
+        path = folder / RAW_FILES[port]
+        if not path.exists():
+            msg = f"{path}: missing (a flight recorded by mkflight has mk.raw and laser.raw)"
+            raise ReplayError(msg)
+        rec = read_raw(path)
+        if rec.warning is not None:
+            warnings.append(rec.warning + ": replaying what is readable")
+        recordings[port] = rec
+    scans, stops, ready_ns = _events(folder, warnings)
+    merged = [i for port in PORTS for i in _port_inputs(port, recordings[port])] + stops
+    merged.sort(key=lambda i: i.t_ns)  # stable: one port's records keep their order
+    starts = [r.header.start_t_ns for r in recordings.values()]
+    ends = [r.records[-1].t_ns for r in recordings.values() if r.records]
+    start_ns = min(starts)
+    return RecordedFlight(
+        folder=folder,
+        config=config,
+        mkflight_version=version,
+        inputs=merged,
+        start_ns=start_ns,
+        end_ns=max(ends, default=start_ns),
+        recordings=recordings,
+        scans=scans,
+        ready_ns=ready_ns,
+        warnings=warnings,
+    )
