@@ -266,7 +266,11 @@ class FlightApp:
             self.stop_request, self.stop_reason, self.stop_at_ns = request, reason, now
             if self._preflight_task is not None and not self._preflight_task.done():
                 self._preflight_task.cancel()
-        self.event(now, "stop", request=request.value, reason=reason)
+        # ``steps``: how many steps had run; the next one sees the stop (a replay repeats
+        # it there: the request's time alone does not say whether that step's DebugOut,
+        # read just before, had been stepped yet).
+        steps = self.core.counters.imu_steps if self.start_ns else None
+        self.event(now, "stop", request=request.value, reason=reason, steps=steps)
 
     def event(self, t_ns: int, event: str, **fields: Any) -> None:
         """One ``events.jsonl`` line (nothing before the folder exists or after a failure)."""

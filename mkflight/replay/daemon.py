@@ -3,6 +3,8 @@
 :class:`ReplayApp` is the flight daemon (the same pre-flight, links, driver, tasks and
 step) with replay-only additions, none of which changes what it computes:
 
+* an operator's stop (SIGINT, SIGTERM, ``--duration``) comes before the step that first
+  saw it in flight;
 * READY comes at the recorded time (the pre-flight's length was the original machine's:
   spawning the matcher process), so the first step takes the same DebugOut;
 * it tells the :class:`~mkflight.replay.feeder.Feeder` how many bytes it read per port
@@ -30,10 +32,12 @@ from mkflight.flight.app import FlightApp, FlightOptions
 from mkflight.flight.laser_pipeline import LaserResult
 from mkflight.flight.matcher_worker import MatcherWorker
 from mkflight.flight.sdnotify import Notifier
-from mkflight.msgs import Pose2D, Scan
+from mkflight.flight.step import ImuStepOutput
+from mkflight.msgs import ImuSample, Pose2D, Scan
 from mkflight.replay.feeder import Feeder
 from mkflight.replay.inputs import RecordedScan
 from mkflight.replay.vloop import VirtualClock
+from mkflight.safety.failsafe import StopRequest
 from mkflight.scanmatch.geometry import Pose
 
 
@@ -100,10 +104,12 @@ class ReplayApp(FlightApp):
         scans: dict[int, RecordedScan],
         use_recorded_poses: bool,
         ready_ns: int | None = None,
+        step_stops: list[tuple[int, StopRequest, str]] | None = None,
     ) -> None:
         super().__init__(cfg, opts, clock=clock, notifier=Notifier(None))
         self.feeder = feeder
         self._ready_ns = ready_ns
+        self._step_stops = sorted(step_stops or [], key=lambda s: s[0])
         self._steps = {seq: s.step for seq, s in scans.items() if s.step is not None}
         self.recorded = RecordedMatcher(cfg, scans if use_recorded_poses else {})
         self.worker = self.recorded
@@ -138,6 +144,13 @@ class ReplayApp(FlightApp):
             wait_ns = self._ready_ns - self.clock.now_ns()
             if wait_ns > 0:
                 await asyncio.sleep(wait_ns / NS_PER_S)
+
+    def step(self, sample: ImuSample) -> ImuStepOutput:
+        """A recorded operator stop first, if the original's next step saw one; the step."""
+        while self._step_stops and self._step_stops[0][0] <= self.core.counters.imu_steps:
+            _, request, reason = self._step_stops.pop(0)
+            self.request_stop(request, reason)
+        return super().step(sample)
 
     def scan_wanted(self, seq: int) -> bool:
         """A scan the original flight applied (the others it skipped: its matcher was busy)."""

@@ -7,12 +7,12 @@ Pure reading, no I/O beyond the files (SPEC §6). From a flight folder:
   and re-open ('o', a fresh pty appears). What the daemon *wrote* is not input; the
   ExternControl frames among it are what the replay must reproduce.
 * ``events.jsonl`` -> what the original daemon's environment decided and the recording
-  must therefore name: the operator's stop requests (SIGINT, SIGTERM, ``--duration``: an
-  ``'s'`` input at its time); per scan, the scan matcher's result and the step it entered
-  (:class:`RecordedScan`; the matcher ran in its own process, so where a pose landed
-  depended on that process's timing); and the time of READY (``ready``: the pre-flight
-  took as long as spawning the matcher took, and the first step is the first DebugOut
-  after it).
+  must therefore name: the operator's stop requests (SIGINT, SIGTERM, ``--duration``: in
+  flight at the step that first saw it, before READY an ``'s'`` input at its time); per
+  scan, the scan matcher's result and the step it entered (:class:`RecordedScan`; the
+  matcher ran in its own process, so where a pose landed depended on that process's
+  timing); and the time of READY (``ready``: the pre-flight took as long as spawning the
+  matcher took, and the first step is the first DebugOut after it).
 * ``flight.json`` -> the configuration flown.
 
 Bad input is a :class:`~mkflight.errors.ReplayError` naming the file and the byte offset
@@ -79,6 +79,8 @@ class RecordedFlight:
     recordings: dict[str, RawRecording]
     scans: dict[int, RecordedScan]
     ready_ns: int | None = None
+    #: operator stops seen in flight: (steps run when it came, request, reason)
+    step_stops: list[tuple[int, StopRequest, str]] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
 
     @property
@@ -108,23 +110,28 @@ def _pose(fields: dict[str, Any], t_ns: int) -> Pose2D | None:
     return Pose2D(t_ns, float(x), float(y), float(yaw))  # type: ignore[arg-type]
 
 
-def _events(
-    folder: Path, warnings: list[str]
-) -> tuple[dict[int, RecordedScan], list[Input], int | None]:
+@dataclass(slots=True)
+class _EventInputs:
+    scans: dict[int, RecordedScan] = field(default_factory=dict)
+    stops: list[Input] = field(default_factory=list)  # before READY: by time
+    step_stops: list[tuple[int, StopRequest, str]] = field(default_factory=list)
+    ready_ns: int | None = None
+
+
+def _events(folder: Path, warnings: list[str]) -> _EventInputs:
     path = folder / "events.jsonl"
+    out = _EventInputs()
     if not path.exists():
         warnings.append(f"{path}: missing: scans are matched again, no stop is repeated")
-        return {}, [], None
+        return out
     data = read_events(path)
     if data.truncated:
         warnings.append(f"{path}: last line cut short: dropped")
-    scans: dict[int, RecordedScan] = {}
-    stops: list[Input] = []
-    ready_ns: int | None = None
+    scans = out.scans
     for ev in data.events:
         f = ev.fields
-        if ev.event == "ready" or (ev.event == "preflight" and ready_ns is None):
-            ready_ns = ev.t_ns  # flights before the 'ready' event: the pre-flight's end
+        if ev.event == "ready" or (ev.event == "preflight" and out.ready_ns is None):
+            out.ready_ns = ev.t_ns  # flights before the 'ready' event: the pre-flight's end
         elif ev.event == "scan" and "x_m" in f and isinstance(f.get("seq"), int):
             step = f.get("step")
             height = f.get("height_m")
@@ -141,9 +148,14 @@ def _events(
                 request = StopRequest(f.get("request"))
             except ValueError:
                 continue
-            if request in EXTERNAL_STOPS:
-                stops.append(Input(ev.t_ns, "", "s", stop=request, reason=str(f.get("reason"))))
-    return scans, stops, ready_ns
+            if request not in EXTERNAL_STOPS:
+                continue
+            reason, steps = str(f.get("reason")), f.get("steps")
+            if isinstance(steps, int) and not isinstance(steps, bool):
+                out.step_stops.append((steps, request, reason))
+            else:  # before READY, or a flight recorded before 'steps'
+                out.stops.append(Input(ev.t_ns, "", "s", stop=request, reason=reason))
+    return out
 
 
 def _port_inputs(port: str, rec: RawRecording) -> list[Input]:
@@ -179,8 +191,8 @@ def read_recorded_flight(folder: str | Path) -> RecordedFlight:
         if rec.warning is not None:
             warnings.append(rec.warning + ": replaying what is readable")
         recordings[port] = rec
-    scans, stops, ready_ns = _events(folder, warnings)
-    merged = [i for port in PORTS for i in _port_inputs(port, recordings[port])] + stops
+    ev = _events(folder, warnings)
+    merged = [i for port in PORTS for i in _port_inputs(port, recordings[port])] + ev.stops
     merged.sort(key=lambda i: i.t_ns)  # stable: one port's records keep their order
     starts = [r.header.start_t_ns for r in recordings.values()]
     ends = [r.records[-1].t_ns for r in recordings.values() if r.records]
@@ -193,7 +205,8 @@ def read_recorded_flight(folder: str | Path) -> RecordedFlight:
         start_ns=start_ns,
         end_ns=max(ends, default=start_ns),
         recordings=recordings,
-        scans=scans,
-        ready_ns=ready_ns,
+        scans=ev.scans,
+        ready_ns=ev.ready_ns,
+        step_stops=ev.step_stops,
         warnings=warnings,
     )

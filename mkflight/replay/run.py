@@ -285,6 +285,7 @@ def replay_flight(
         scans=rec.scans,
         use_recorded_poses=use_recorded,
         ready_ns=rec.ready_ns,
+        step_stops=rec.step_stops,
     )
     feeder.set_stop(app.request_stop)
     loop = LockstepLoop(clock, feeder)
