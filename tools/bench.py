@@ -13,6 +13,8 @@ Run: ``pip install -e '.[bench]' && python tools/bench.py`` (``--json`` for mach
   pyserial-asyncio (whose transport queues every write for the next event-loop turn).
   Both ends use ``time.perf_counter_ns`` (CLOCK_MONOTONIC), one clock for both processes.
 * ``step``: CPU per flight step (``FlightCore.imu_step``/``laser_step``) in a lock-step hover.
+* ``replay``: a recorded flight replayed as fast as it goes, with the recorded scan
+  poses and, as the baseline, with the scan matcher run again (``tools/bench_replay.py``).
 * ``flight``: two real-time simulated flights of ``--flight-duration`` s (default 600): the
   daemon's latency with ICP running, step timing, missed steps, CPU and precision, with the
   matcher in its own process against the same flight with ICP on the loop
@@ -276,8 +278,21 @@ def summarize(values: list[float]) -> dict[str, float]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "--only", choices=("codec", "latency", "scanmatch", "step", "flight"), help="run one group"
+        "--only",
+        choices=("codec", "latency", "scanmatch", "step", "flight", "replay"),
+        help="run one group",
     )
+    parser.add_argument(
+        "--replay-source", type=Path, metavar="DIR", help="the 'replay' group's flight folder"
+    )
+    parser.add_argument(
+        "--replay-duration",
+        type=float,
+        default=600.0,
+        metavar="S",
+        help="without --replay-source: fly (and keep) a simulated flight this long to replay",
+    )
+    parser.add_argument("--replay-runs", type=int, default=3, help="replays per variant")
     parser.add_argument(
         "--flight-duration",
         type=float,
@@ -338,6 +353,12 @@ def main() -> int:
         import bench_flight  # tools/bench_flight.py, beside this file
 
         result["flight"] = bench_flight.run(args.flight_duration, args.baseline_duration)
+    if args.only in (None, "replay"):
+        import bench_replay  # tools/bench_replay.py, beside this file
+
+        result["replay"] = bench_replay.run(
+            args.replay_source, args.replay_duration, args.replay_runs
+        )
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
@@ -377,6 +398,17 @@ def main() -> int:
         import bench_flight
 
         print(bench_flight.format_table(result["flight"]))
+    if "replay" in result:
+        r = result["replay"]
+        print(f"replay of {r['source']} ({r['fast']['recorded_s']:.0f} s recorded):")
+        print(f"  {'variant':26s} {'wall s':>8s} {'x real time':>12s} {'CPU ms/step':>12s} ok")
+        for name, v in r.items():
+            if isinstance(v, dict):
+                print(
+                    f"  {name:26s} {v['wall_s_median']:8.2f} {v['speedup_median']:12.0f}"
+                    f" {v['cpu_ms_per_step']:12.3f} {v['deterministic']}"
+                )
+        print(f"  ratio fast/baseline (wall): {r['ratio_fast_over_baseline']:.2f}")
     return 0
 
 
