@@ -221,9 +221,7 @@ def test_the_seeds_two_tables_alone_replay_through_the_daemon(flight: Path, tmp_
     assert "determinism check" not in text.stdout
 
 
-def test_a_paced_replay_is_as_exact_and_not_faster_than_asked(
-    flight: Path, tmp_path: Path
-) -> None:
+def test_a_paced_replay_is_as_exact_and_not_faster_than_asked(flight: Path, tmp_path: Path) -> None:
     """--speed X paces the same lock-step clock: the same bytes, never ahead of X x real
     time (a lower bound only: a loaded machine may be slower, never faster)."""
     r = replay_flight(flight, tmp_path / "r", speed=40.0)
