@@ -8,8 +8,6 @@ import sys
 from datetime import UTC, datetime
 from pathlib import Path
 
-import msgspec
-
 from mkflight.config import Config, load_config
 from mkflight.errors import ConfigError, FlightError, MkflightError, PortNotFoundError
 from mkflight.flight.flight_logs import TRUTH_FILE, folder_in_use
@@ -172,9 +170,11 @@ def cmd_fly(
                 msg = f"{what} port {port} ({flag}): no such device"
                 raise PortNotFoundError(msg)
     if height_m is not None:  # in the config flown, so flight.json (and a replay) has it
-        cfg = msgspec.structs.replace(
-            cfg, control=msgspec.structs.replace(cfg.control, takeoff_height_m=height_m)
-        )
+        try:
+            cfg = load_config(config_path, [*overrides, f"control.takeoff_height_m={height_m}"])
+        except ConfigError as err:  # e.g. above the 3 m the config allows
+            msg = f"--height {height_m:g}: {err}"
+            raise ConfigError(msg) from err
     folder = _folder(cfg, log_dir)
     code, reason, summary = asyncio.run(
         _fly(

@@ -68,9 +68,10 @@ def _t(t_ns: int | None, start_ns: int) -> str:
 
 
 def _command_lines(c: CommandComparison, start_ns: int, what_if: bool) -> list[str]:
+    after = f"; {c.n_after_end} more after the recording ended" if c.n_after_end else ""
     lines = [
         f"ExternControl: {c.n_identical} of {c.n_original} recorded frames identical "
-        f"({c.n_replayed} sent in the replay)"
+        f"({c.n_replayed} sent in the replay{after})"
     ]
     if c.first is not None:
         f = c.first

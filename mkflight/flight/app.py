@@ -145,6 +145,8 @@ class FlightApp:
         self.worker = MatcherWorker(cfg, mode=cfg.scanmatch.worker)
         self.preflight: PreflightReport | None = None
         self.pending: deque[LaserResult] = deque()
+        #: when each pending result came back from the matcher (scan seq -> t_ns)
+        self.result_ns: dict[int, int] = {}
         self._attitude: deque[tuple[int, float, float]] = deque(maxlen=ATTITUDE_HISTORY)
         self._last_cmd_write_ns = 0
         self._handshake_confirms0: int | None = None
@@ -316,6 +318,7 @@ class FlightApp:
                 step=step,
                 seq=r.seq,
                 valid=r.pose is not None,
+                got_ns=self.result_ns.pop(r.seq, None),
                 x_m=None if r.pose is None else r.pose.x_m,
                 y_m=None if r.pose is None else r.pose.y_m,
                 yaw_rad=None if r.pose is None else r.pose.yaw_rad,

@@ -16,6 +16,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, TypeVar
 
+import structlog
+
 from mkflight.clock import Clock
 from mkflight.config import Config
 from mkflight.control.controller import Setpoint
@@ -35,6 +37,9 @@ TRUTH_FILE = "truth.txt"  # a simulator may have started its truth log in the fo
 def folder_in_use(folder: Path) -> bool:
     """True if ``folder`` holds anything but a simulator's truth log: never overwritten."""
     return folder.exists() and any(p.name != TRUTH_FILE for p in folder.iterdir())
+
+
+log = structlog.get_logger("mkflight.logs")
 
 
 class FlightLogs:
@@ -63,6 +68,7 @@ class FlightLogs:
         self.folder = folder
         self.on_error = on_error
         self.error: OSError | None = None
+        self.events_dropped = 0  # events with a value JSON cannot hold (a bug; logged)
         self._closers: list[Any] = []
         try:
             folder.mkdir(parents=True, exist_ok=True)
@@ -111,6 +117,9 @@ class FlightLogs:
             self.events.write(t_ns, event, **fields)
         except OSError as err:
             self._failed(err)
+        except (TypeError, ValueError) as err:  # a value JSON cannot hold: a bug, not a stop
+            self.events_dropped += 1
+            log.error("event not written", event_name=event, error=str(err))
 
     def row3(self, row: Table3Row) -> None:
         """One TABLE III row."""

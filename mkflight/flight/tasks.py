@@ -52,7 +52,8 @@ async def mk_task(app: FlightApp) -> None:
             out = app.step(sample)  # its command's write may find the port gone
         except LinkError as err:
             if link.error is not None:  # the port itself failed: try to hand back
-                app.mark("mk", "c", str(err))
+                with contextlib.suppress(Exception):  # nothing may keep us from handing back
+                    app.mark("mk", "c", str(err))
                 with contextlib.suppress(LinkError, TimeoutError):
                     async with asyncio.timeout(FC_REOPEN_S):
                         await link.reopen(max_wait_s=FC_REOPEN_S)  # releases first
@@ -98,6 +99,7 @@ async def laser_task(app: FlightApp) -> None:
             raise FlightError(msg) from err
         app.monitor.matcher_cpu_s += result.compute_s
         app.matches += 1
+        app.result_ns[result.seq] = app.clock.now_ns()  # the scan event says when
         app.pending.append(result)
 
 

@@ -33,8 +33,9 @@ kernel in one ``write`` as it happens (the file is unbuffered), so a killed proc
 loses nothing but, at worst, the tail of the record being written: the reader keeps every
 complete record and reports the byte offset of the incomplete one
 (:attr:`RawRecording.truncated_at`). A broken header (wrong magic, unknown version, cut
-short) or an unknown record kind is a :class:`~mkflight.errors.ReplayError` naming the
-file and the byte offset.
+short), an unknown record kind, or a record running past the end whose time is before
+the previous one's or more than a day after it (damage, not a kill) is a
+:class:`~mkflight.errors.ReplayError` naming the file and the byte offset.
 """
 
 from __future__ import annotations
@@ -77,6 +78,8 @@ _HEADER = struct.Struct("<8sHHqq")  # magic, version, label length, start_wall_n
 _RECORD = struct.Struct("<qcI")  # t_ns, kind, payload length
 _MAX_LABEL_BYTES: Final = 0xFFFF
 _MAX_PAYLOAD_BYTES: Final = 0xFFFF_FFFF
+#: Records are in time order; one more than a day after the previous is corrupt.
+_MAX_GAP_NS: Final = 86_400 * 1_000_000_000
 
 #: Opens the recording's file; the default creates it (never overwrites) unbuffered.
 FileOpener = Callable[[Path], BinaryIO]
@@ -328,6 +331,7 @@ def read_raw(path: str | Path) -> RawRecording:
     record_size = _RECORD.size
     kind_of_byte = _KIND_OF_BYTE
     truncated_at: int | None = None
+    prev_ns: int | None = None
     while offset < size:
         if size - offset < record_size:
             truncated_at = offset
@@ -339,6 +343,15 @@ def read_raw(path: str | Path) -> RawRecording:
             raise ReplayError(msg)
         start = offset + record_size
         end = start + length
+        if end > size and prev_ns is not None and not prev_ns <= t_ns <= prev_ns + _MAX_GAP_NS:
+            # A record cut by a kill keeps a plausible time; this is damage, not a kill.
+            msg = (
+                f"{path}: byte {offset}: a record running past the end of the file, its "
+                f"time {t_ns} ns not within a day after the previous one ({prev_ns} ns): "
+                "the file is corrupt here"
+            )
+            raise ReplayError(msg)
+        prev_ns = t_ns
         if end > size:
             truncated_at = offset
             break

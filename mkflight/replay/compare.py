@@ -51,6 +51,8 @@ class CommandComparison:
     n_identical: int
     first: FirstDifference | None
     channels: tuple[ChannelDiff, ...]
+    #: replayed frames sent after the recording ended (a killed flight): not compared
+    n_after_end: int = 0
 
     @property
     def identical(self) -> bool:
@@ -71,9 +73,21 @@ def decode_frames(frames: list[tuple[int, bytes]]) -> np.ndarray:
 
 
 def compare_commands(
-    original: list[tuple[int, bytes]], replayed: list[tuple[int, bytes]]
+    original: list[tuple[int, bytes]],
+    replayed: list[tuple[int, bytes]],
+    *,
+    end_ns: int | None = None,
 ) -> CommandComparison:
-    """Compare two ExternControl streams (see the module docstring)."""
+    """Compare two ExternControl streams (see the module docstring).
+
+    ``end_ns``: when the original recording ended; replayed frames sent later (the
+    daemon handing back after the recording of a killed flight stops) are counted in
+    ``n_after_end`` and not compared.
+    """
+    after = 0
+    if end_ns is not None:
+        kept = [f for f in replayed if f[0] <= end_ns]
+        after, replayed = len(replayed) - len(kept), kept
     n = min(len(original), len(replayed))
     first: FirstDifference | None = None
     identical = 0
@@ -109,4 +123,6 @@ def compare_commands(
                 mean_replayed=float(b[:, j].mean()) if n else 0.0,
             )
         )
-    return CommandComparison(len(original), len(replayed), identical, first, tuple(channels))
+    return CommandComparison(
+        len(original), len(replayed), identical, first, tuple(channels), n_after_end=after
+    )

@@ -49,9 +49,12 @@ class RecordedMatcher(MatcherWorker):
     the pre-flight's scans, which the original did not log - are matched for real.
     """
 
-    def __init__(self, cfg: Config, scans: dict[int, RecordedScan]) -> None:
+    def __init__(
+        self, cfg: Config, scans: dict[int, RecordedScan], got_ns: dict[int, int] | None = None
+    ) -> None:
         super().__init__(cfg, mode="inline")
         self._scans = scans
+        self._got_ns = got_ns or {}
         self.recorded_used = 0
         self.matched = 0
         self.stamp_differs = 0
@@ -63,7 +66,18 @@ class RecordedMatcher(MatcherWorker):
         roll_rad: float,
         motion_prior: Pose | None = None,
     ) -> LaserResult:
-        """The recorded result of ``scan`` if there is one, else a real match."""
+        """The recorded result of ``scan`` if there is one, else a real match.
+
+        Either way the answer comes when it came in flight (``got_ns``, on the lock-step
+        clock): the matcher process took real time, and what the laser task saw next -
+        a newer scan already there, or none yet and a stale stream to restart - depends on
+        what arrived meanwhile.
+        """
+        got = self._got_ns.get(scan.seq)
+        if got is not None:
+            wait_ns = got - asyncio.get_running_loop().time() * NS_PER_S
+            if wait_ns > 0:
+                await asyncio.sleep(wait_ns / NS_PER_S)
         rec = self._scans.get(scan.seq)
         if rec is None:
             self.matched += 1
@@ -111,7 +125,8 @@ class ReplayApp(FlightApp):
         self._ready_ns = ready_ns
         self._step_stops = sorted(step_stops or [], key=lambda s: s[0])
         self._steps = {seq: s.step for seq, s in scans.items() if s.step is not None}
-        self.recorded = RecordedMatcher(cfg, scans if use_recorded_poses else {})
+        got = {seq: s.got_ns for seq, s in scans.items() if s.got_ns is not None}
+        self.recorded = RecordedMatcher(cfg, scans if use_recorded_poses else {}, got)
         self.worker = self.recorded
         feeder.closed["mk"] = lambda: self.link is not None and self.link.closed
         feeder.closed["laser"] = lambda: self.driver is not None and self.driver.closed
@@ -151,6 +166,10 @@ class ReplayApp(FlightApp):
             _, request, reason = self._step_stops.pop(0)
             self.request_stop(request, reason)
         return super().step(sample)
+
+    def _on_signal(self, request: StopRequest, name: str) -> None:
+        """SIGINT/SIGTERM/SIGHUP end the replay (there is no vehicle to land)."""
+        raise KeyboardInterrupt(name)
 
     def scan_wanted(self, seq: int) -> bool:
         """A scan the original flight applied (the others it skipped: its matcher was busy)."""

@@ -64,6 +64,7 @@ class RecordedScan:
     pose: Pose2D | None
     height_m: float | None
     degenerate: bool
+    got_ns: int | None = None  # when the matcher's result came back in flight
 
 
 @dataclass(slots=True)
@@ -79,6 +80,8 @@ class RecordedFlight:
     recordings: dict[str, RawRecording]
     scans: dict[int, RecordedScan]
     ready_ns: int | None = None
+    #: the flight ended by itself (flight.json has its summary); else it was killed
+    completed: bool = True
     #: operator stops seen in flight: (steps run when it came, request, reason)
     step_stops: list[tuple[int, StopRequest, str]] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
@@ -94,13 +97,13 @@ class RecordedFlight:
         return (self.end_ns - self.start_ns) / 1e9
 
 
-def _read_info(folder: Path) -> tuple[dict[str, Any], str]:
+def _read_info(folder: Path) -> tuple[dict[str, Any], str, bool]:
     path = folder / "flight.json"
     if not path.exists():
         msg = f"{path}: missing (the configuration flown is needed to replay)"
         raise ReplayError(msg)
     info = read_flight_json(path)  # names the file; refuses a newer log format
-    return info.config, info.mkflight_version
+    return info.config, info.mkflight_version, info.summary is not None
 
 
 def _pose(fields: dict[str, Any], t_ns: int) -> Pose2D | None:
@@ -133,7 +136,7 @@ def _events(folder: Path, warnings: list[str]) -> _EventInputs:
         if ev.event == "ready" or (ev.event == "preflight" and out.ready_ns is None):
             out.ready_ns = ev.t_ns  # flights before the 'ready' event: the pre-flight's end
         elif ev.event == "scan" and "x_m" in f and isinstance(f.get("seq"), int):
-            step = f.get("step")
+            step, got = f.get("step"), f.get("got_ns")
             height = f.get("height_m")
             scans[f["seq"]] = RecordedScan(
                 t_ns=ev.t_ns,
@@ -142,6 +145,7 @@ def _events(folder: Path, warnings: list[str]) -> _EventInputs:
                 pose=_pose(f, ev.t_ns),
                 height_m=float(height) if isinstance(height, int | float) else None,
                 degenerate=bool(f.get("degenerate", False)),
+                got_ns=got if isinstance(got, int) and not isinstance(got, bool) else None,
             )
         elif ev.event == "stop":
             try:
@@ -177,9 +181,10 @@ def read_recorded_flight(folder: str | Path) -> RecordedFlight:
     """
     folder = Path(folder)
     if not folder.is_dir():
-        msg = f"{folder}: not a flight folder (no such directory)"
+        what = "not a directory" if folder.exists() else "no such directory"
+        msg = f"{folder}: not a flight folder ({what})"
         raise ReplayError(msg)
-    config, version = _read_info(folder)
+    config, version, completed = _read_info(folder)
     warnings: list[str] = []
     recordings: dict[str, RawRecording] = {}
     for port in PORTS:
@@ -188,6 +193,9 @@ def read_recorded_flight(folder: str | Path) -> RecordedFlight:
             msg = f"{path}: missing (a flight recorded by mkflight has mk.raw and laser.raw)"
             raise ReplayError(msg)
         rec = read_raw(path)
+        if not any(r.kind == "r" for r in rec.records):
+            msg = f"{path}: no bytes read from the port are recorded ({rec.size_bytes} bytes)"
+            raise ReplayError(msg)
         if rec.warning is not None:
             warnings.append(rec.warning + ": replaying what is readable")
         recordings[port] = rec
@@ -207,6 +215,7 @@ def read_recorded_flight(folder: str | Path) -> RecordedFlight:
         recordings=recordings,
         scans=ev.scans,
         ready_ns=ev.ready_ns,
+        completed=completed,
         step_stops=ev.step_stops,
         warnings=warnings,
     )

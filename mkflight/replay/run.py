@@ -164,7 +164,8 @@ def matcher_changed(recorded: dict[str, Any], cfg: Config) -> bool:
 
 
 def default_out_dir(source: Path) -> Path:
-    """``<flight>-replay``, or ``-replay-2``, ``-3``... if taken."""
+    """``<flight>-replay`` beside the flight, or ``-replay-2``, ``-3``... if taken."""
+    source = source.resolve()  # "." has no name
     base = source.parent / f"{source.name}-replay"
     out, n = base, 1
     while out.exists():
@@ -174,10 +175,19 @@ def default_out_dir(source: Path) -> Path:
 
 
 def _out_dir(source: Path, out_dir: str | Path | None) -> Path:
+    """The new flight folder, created (empty); a usage error if that cannot be."""
     out = Path(out_dir) if out_dir is not None else default_out_dir(source)
+    if out.exists() and not out.is_dir():
+        msg = f"output folder {str(out)!r} is a file"
+        raise ConfigError(msg)
     if out.exists() and any(out.iterdir()):
         msg = f"output folder {str(out)!r} is not empty: a flight folder is never overwritten"
         raise ConfigError(msg)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        msg = f"output folder {str(out)!r} cannot be created: {err.strerror or err}"
+        raise ConfigError(msg) from err
     return out
 
 
@@ -191,10 +201,19 @@ def is_seed_folder(folder: Path) -> bool:
     )
 
 
-def compare_tables(original: Path, replayed: Path) -> list[TableComparison]:
-    """Each table of the replay line by line against the original's."""
+def compare_tables(
+    original: Path, replayed: Path, warnings: list[str] | None = None
+) -> list[TableComparison]:
+    """Each table of the replay line by line against the original's.
+
+    A table missing from the original is not compared (a warning says so).
+    """
     out = []
     for name in TABLES:
+        if not (original / name).is_file():
+            if warnings is not None:
+                warnings.append(f"{original / name}: missing: the replay's is not compared")
+            continue
         a = _lines(original / name)
         b = _lines(replayed / name)
         first = next((i for i, (x, y) in enumerate(zip(a, b, strict=False)) if x != y), None)
@@ -226,6 +245,33 @@ async def _run(app: ReplayApp, feeder: Feeder) -> FlightReport:
         return await app.fly()
     finally:
         feeder.close_devices()
+
+
+def _run_lockstep(
+    app: ReplayApp, feeder: Feeder, clock: VirtualClock, link_dir: Path
+) -> FlightReport:
+    """Fly ``app`` on a lock-step loop fed by ``feeder``; always clean up.
+
+    SIGINT/SIGTERM stop the replay, not the replayed vehicle (:class:`ReplayApp`): the
+    daemon is cancelled - it still closes its ports and its folder - and
+    KeyboardInterrupt goes on to the caller.
+    """
+    loop = LockstepLoop(clock, feeder)
+    asyncio.set_event_loop(loop)
+    main = loop.create_task(_run(app, feeder))
+    try:
+        return loop.run_until_complete(main)
+    except KeyboardInterrupt:
+        main.cancel()
+        with contextlib.suppress(BaseException):
+            loop.run_until_complete(main)
+        raise
+    finally:
+        with contextlib.suppress(Exception):
+            loop.run_until_complete(loop.shutdown_asyncgens())
+        asyncio.set_event_loop(None)
+        loop.close()
+        shutil.rmtree(link_dir, ignore_errors=True)
 
 
 def replay_flight(
@@ -288,17 +334,8 @@ def replay_flight(
         step_stops=rec.step_stops,
     )
     feeder.set_stop(app.request_stop)
-    loop = LockstepLoop(clock, feeder)
     cpu0, wall0 = time.process_time(), time.perf_counter()
-    try:
-        asyncio.set_event_loop(loop)
-        report = loop.run_until_complete(_run(app, feeder))
-    finally:
-        with contextlib.suppress(Exception):
-            loop.run_until_complete(loop.shutdown_asyncgens())
-        asyncio.set_event_loop(None)
-        loop.close()
-        shutil.rmtree(link_dir, ignore_errors=True)
+    report = _run_lockstep(app, feeder, clock, link_dir)
     wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
     if on_progress is not None:
         on_progress(feeder.total, feeder.total)
@@ -306,6 +343,13 @@ def replay_flight(
     original = extern_control_frames(rec.recordings["mk"])
     replayed = extern_control_frames(read_raw(out / "mk.raw")) if (out / "mk.raw").exists() else []
     warnings = list(rec.warnings)
+    if not rec.completed:
+        warnings.append(
+            f"{rec.folder / 'flight.json'}: no summary: the flight was killed; what the "
+            "replay sent after the recording ended is not compared"
+        )
+    if feeder.stats.pty_dropped_bytes:
+        warnings.append(f"{feeder.stats.pty_dropped_bytes} bytes did not fit into a pty")
     if not rec.has_poses:
         warnings.append(
             f"{rec.folder / 'events.jsonl'}: no scan poses recorded: scans matched again"
@@ -319,8 +363,8 @@ def replay_flight(
         source=rec.folder,
         out_dir=out,
         flight=report,
-        commands=compare_commands(original, replayed),
-        tables=compare_tables(rec.folder, out),
+        commands=compare_commands(original, replayed, end_ns=None if rec.completed else rec.end_ns),
+        tables=compare_tables(rec.folder, out, warnings),
         overrides=overrides,
         rematch=not use_recorded,
         recorded_s=rec.duration_s,
@@ -432,17 +476,8 @@ def replay_seed(
             first_step.append(app.core.counters.imu_steps + 1)
 
     app.on_step = on_step
-    loop = LockstepLoop(clock, feeder)
     cpu0, wall0 = time.process_time(), time.perf_counter()
-    try:
-        asyncio.set_event_loop(loop)
-        report = loop.run_until_complete(_run(app, feeder))
-    finally:
-        with contextlib.suppress(Exception):
-            loop.run_until_complete(loop.shutdown_asyncgens())
-        asyncio.set_event_loop(None)
-        loop.close()
-        shutil.rmtree(link_dir, ignore_errors=True)
+    report = _run_lockstep(app, feeder, clock, link_dir)
     wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
     if fc.rows_sent < len(imu_seed):
         warnings.append(

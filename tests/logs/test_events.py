@@ -56,3 +56,12 @@ def test_a_line_nested_too_deep_is_a_replay_error_not_a_crash(tmp_path: Path) ->
     path.write_text('{"t_ns": 1, "event": "x"}\n' + "[" * 100_000 + "]" * 100_000 + "\n")
     with pytest.raises(ReplayError, match=r"events\.jsonl:2: nested too deeply"):
         read_events(path)
+
+
+def test_numpy_scalars_are_written_as_the_numbers_they_hold(tmp_path: Path) -> None:
+    import numpy as np
+
+    with EventsWriter(tmp_path) as w:
+        w.write(5, "x", a=np.float64(0.25), b=np.int64(7), c=np.bool_(True), d=np.float64("nan"))
+    (ev,) = read_events(tmp_path / FILE_NAME).events
+    assert ev.fields == {"a": 0.25, "b": 7, "c": True, "d": None}

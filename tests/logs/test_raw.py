@@ -245,3 +245,19 @@ def test_port_label_too_long(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="port label too long"):
         _recorder(tmp_path / "mk.raw", "x" * 70_000)
     assert not (tmp_path / "mk.raw").exists()
+
+
+def test_damage_is_not_taken_for_a_killed_process(tmp_path: Path) -> None:
+    """A header overwritten mid-file (its length now past the end, its time absurd) is an
+    error naming the byte, not a 'truncated tail' that silently drops the rest."""
+    path = tmp_path / "mk.raw"
+    with _recorder(path) as rec:
+        for t in (6_000, 7_000, 8_000):
+            rec("r", t, b"#bD" + b"=" * 60 + b"\r")
+    blob = bytearray(path.read_bytes())
+    third = len(blob) - (13 + 64)
+    blob[third : third + 8] = b"\xff" * 8  # t_ns
+    blob[third + 9 : third + 13] = b"\xff" * 4  # length
+    path.write_bytes(bytes(blob))
+    with pytest.raises(ReplayError, match=rf"byte {third}: .* corrupt"):
+        read_raw(path)
