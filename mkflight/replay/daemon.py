@@ -24,6 +24,7 @@ step) with replay-only additions, none of which changes what it computes:
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 from typing import Any
 
 from mkflight.clock import NS_PER_S
@@ -55,6 +56,8 @@ class RecordedMatcher(MatcherWorker):
         super().__init__(cfg, mode="inline")
         self._scans = scans
         self._got_ns = got_ns or {}
+        #: the replay's clock (set by :class:`ReplayApp`)
+        self._now_ns: Callable[[], int] = lambda: 0
         self.recorded_used = 0
         self.matched = 0
         self.stamp_differs = 0
@@ -75,7 +78,7 @@ class RecordedMatcher(MatcherWorker):
         """
         got = self._got_ns.get(scan.seq)
         if got is not None:
-            wait_ns = got - asyncio.get_running_loop().time() * NS_PER_S
+            wait_ns = got - self._now_ns()
             if wait_ns > 0:
                 await asyncio.sleep(wait_ns / NS_PER_S)
         rec = self._scans.get(scan.seq)
@@ -125,8 +128,9 @@ class ReplayApp(FlightApp):
         self._ready_ns = ready_ns
         self._step_stops = sorted(step_stops or [], key=lambda s: s[0])
         self._steps = {seq: s.step for seq, s in scans.items() if s.step is not None}
-        got = {seq: s.got_ns for seq, s in scans.items() if s.got_ns is not None}
+        got = {seq: t for seq, s in scans.items() if (t := s.back_ns) is not None}
         self.recorded = RecordedMatcher(cfg, scans if use_recorded_poses else {}, got)
+        self.recorded._now_ns = clock.now_ns
         self.worker = self.recorded
         feeder.closed["mk"] = lambda: self.link is not None and self.link.closed
         feeder.closed["laser"] = lambda: self.driver is not None and self.driver.closed

@@ -21,6 +21,7 @@ or line; a tail cut short by a killed process is dropped with a warning.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -65,6 +66,22 @@ class RecordedScan:
     height_m: float | None
     degenerate: bool
     got_ns: int | None = None  # when the matcher's result came back in flight
+    due_ns: int | None = None  # the DebugOut time of the step that applied it
+
+    @property
+    def back_ns(self) -> int | None:
+        """When the replay hands the result over: as in flight, and before its step.
+
+        In flight the result can come back after its step's DebugOut was read but before
+        that step ran (both waiting in one loop turn); a replay runs the step as soon as
+        the DebugOut is in, so the result must be back before it (1 µs: a timer lands on
+        the whole nanosecond after its float time).
+        """
+        if self.got_ns is None:
+            return None
+        if self.due_ns is None:
+            return self.got_ns
+        return min(self.got_ns, self.due_ns - 1_000)
 
 
 @dataclass(slots=True)
@@ -131,8 +148,12 @@ def _events(folder: Path, warnings: list[str]) -> _EventInputs:
     if data.truncated:
         warnings.append(f"{path}: last line cut short: dropped")
     scans = out.scans
+    step_ns: list[int] = []  # the k-th step event is step k
     for ev in data.events:
         f = ev.fields
+        if ev.event == "step":
+            step_ns.append(ev.t_ns)
+            continue
         if ev.event == "ready" or (ev.event == "preflight" and out.ready_ns is None):
             out.ready_ns = ev.t_ns  # flights before the 'ready' event: the pre-flight's end
         elif ev.event == "scan" and "x_m" in f and isinstance(f.get("seq"), int):
@@ -159,6 +180,9 @@ def _events(folder: Path, warnings: list[str]) -> _EventInputs:
                 out.step_stops.append((steps, request, reason))
             else:  # before READY, or a flight recorded before 'steps'
                 out.stops.append(Input(ev.t_ns, "", "s", stop=request, reason=reason))
+    for seq, sc in scans.items():
+        if sc.step is not None and 1 <= sc.step <= len(step_ns):
+            scans[seq] = dataclasses.replace(sc, due_ns=step_ns[sc.step - 1])
     return out
 
 
