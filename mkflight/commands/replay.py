@@ -16,40 +16,30 @@ from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from typing import Any
 
+from mkflight.commands.progress import tty_bar
 from mkflight.errors import ReplayError
 from mkflight.logs.flight_json import json_safe
 from mkflight.mk.codec import FrameParser
 from mkflight.mk.messages import ExternControl
 from mkflight.replay.compare import CommandComparison
-from mkflight.replay.run import ReplayReport, replay_flight
+from mkflight.replay.report import ReplayReport
+from mkflight.replay.run import replay_flight
 
 
-@contextmanager
-def _progress() -> Iterator[Callable[[int, int], None] | None]:
-    """A tqdm bar on stderr when it is a TTY; else nothing."""
-    if not sys.stderr.isatty():
-        yield None
-        return
-    try:
-        from tqdm import tqdm  # type: ignore[import-untyped,unused-ignore]
-    except ImportError:
-        yield None
-        return
-    bar = tqdm(total=0, unit="rec", file=sys.stderr, leave=False)
+def _updater(bar: Any) -> Callable[[int, int], None] | None:
+    """``on_progress`` for :func:`replay_flight` drawing on ``bar`` (None: no bar)."""
+    if bar is None:
+        return None
 
     def update(done: int, total: int) -> None:
         bar.total = total
         bar.n = done
         bar.refresh()
 
-    try:
-        yield update
-    finally:
-        bar.close()
+    return update
 
 
 def _decoded(wire: bytes | None) -> str:
@@ -244,9 +234,14 @@ def cmd_replay(
         ReplayError: the folder cannot be replayed (file and offset named).
         ConfigError: a bad ``--set`` or a non-empty ``--out``.
     """
-    with _progress() if not as_json else _nothing() as progress:
+    with tty_bar(0, "rec") as bar:
         report = replay_flight(
-            log_dir, out, overrides=overrides, speed=speed, rematch=rematch, on_progress=progress
+            log_dir,
+            out,
+            overrides=overrides,
+            speed=speed,
+            rematch=rematch,
+            on_progress=None if as_json else _updater(bar),
         )
     for w in report.warnings:
         print(f"warning: {w}", file=sys.stderr)
@@ -258,8 +253,3 @@ def cmd_replay(
         msg = "determinism check failed: the replay did not reproduce the recorded commands"
         raise ReplayError(msg)
     return 0
-
-
-@contextmanager
-def _nothing() -> Iterator[None]:
-    yield None

@@ -34,8 +34,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
@@ -43,6 +42,7 @@ from typing import TextIO
 import numpy as np
 import numpy.typing as npt
 
+from mkflight.commands.progress import tty_bar
 from mkflight.config import load_config
 from mkflight.errors import MkflightError, ProtocolError
 from mkflight.scanmatch import (
@@ -225,24 +225,6 @@ def track_records(
     return out
 
 
-@contextmanager
-def _progress(total: int) -> Iterator[Callable[[], None] | None]:
-    """A tqdm bar on stderr when it is a TTY and tqdm is installed; else nothing."""
-    if not sys.stderr.isatty():
-        yield None
-        return
-    try:
-        from tqdm import tqdm  # type: ignore[import-untyped,unused-ignore]
-    except ImportError:
-        yield None
-        return
-    bar = tqdm(total=total, unit="scan", file=sys.stderr, leave=False)
-    try:
-        yield lambda: bar.update(1)
-    finally:
-        bar.close()
-
-
 def format_pose_line(t_s: float, pose: Pose) -> str:
     """One ``t x y theta`` output line (6 decimals)."""
     return f"{t_s:.6f} {pose[0]:.6f} {pose[1]:.6f} {pose[2]:.6f}\n"
@@ -281,7 +263,8 @@ def cmd_scanmatch(
     odom_data = read_trajectory(odom) if odom is not None else None
     steps = (int(cfg.laser.scan_steps[0]), int(cfg.laser.scan_steps[1]))
     sm = cfg.scanmatch
-    with _progress(len(parsed.records)) as tick:
+    with tty_bar(len(parsed.records), "scan") as bar:
+        tick = None if bar is None else (lambda: bar.update(1))
         tracked = track_records(
             parsed.records,
             scan_steps=steps,
