@@ -157,7 +157,9 @@ def replay_flight(
         warnings.append(f"{feeder.stats.pty_dropped_bytes} bytes did not fit into a pty")
     if not rec.has_poses:
         warnings.append(
-            f"{rec.folder / 'events.jsonl'}: no scan poses recorded: scans matched again"
+            f"{rec.folder / 'events.jsonl'}: no scan poses recorded (a flight from before "
+            "replay existed): scans matched again, each entering at the next step; where "
+            "the matcher's timing mattered in flight the check will differ"
         )
     if feeder.stats.dropped or feeder.stats.never_read_bytes:
         warnings.append(
