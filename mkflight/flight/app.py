@@ -4,7 +4,9 @@ Tasks (STYLE: pure core per tick, asyncio shell per rate):
 
 * **MK task** - driven by DebugOut arrival (SPEC §2), not by a timer: each sample runs
   the 50 ms step (:meth:`FlightCore.imu_step`) and the ExternControl goes to the port at
-  once; the tables, the events and the status come after the command is written.
+  once; the tables, the events and the status come after the command is written, and
+  twice a second a 'p' request for the pilot's sticks (:mod:`mkflight.safety.pilot`)
+  goes out right behind the command.
 * **laser task** - streams scans and hands each to the scan matcher, which runs in its
   own process (:class:`~mkflight.flight.matcher_worker.MatcherWorker`) so that a 1-3 ms
   ICP never delays a command. A finished match is queued and applied by the MK task at
@@ -12,8 +14,7 @@ Tasks (STYLE: pure core per tick, asyncio shell per rate):
   ``scan`` event names the step). The pitch and roll at the scan's time (for the hat,
   eq 26) come from the newest DebugOut samples.
 * **watchdog task** - a timer that only watches: ``--duration``, a stop that takes too
-  long, the pilot's sticks (a 'p' request twice a second, :mod:`mkflight.safety.pilot`),
-  the status line and systemd's STATUS.
+  long, the status line and systemd's STATUS.
 
 One way out: SIGINT, SIGTERM, SIGHUP, ``--duration``, a failed log write and a crash of
 the laser or watchdog task become a :class:`StopRequest` that the step turns into a soft
@@ -45,10 +46,10 @@ from typing import Any
 
 import structlog
 
-from mkflight.clock import Clock, MonotonicClock
+from mkflight.clock import NS_PER_S, Clock, MonotonicClock
 from mkflight.config import Config
 from mkflight.control.phases import Phase, PhaseRequests
-from mkflight.errors import FlightError, PreflightError
+from mkflight.errors import FlightError, LinkError, PreflightError
 from mkflight.flight.flight_logs import FlightLogs
 from mkflight.flight.laser_pipeline import LaserResult
 from mkflight.flight.links import open_laser, open_mk
@@ -75,13 +76,14 @@ from mkflight.mk.link import MkLink
 from mkflight.mk.messages import ExternControl, Ppm
 from mkflight.msgs import Command, ImuSample
 from mkflight.safety.failsafe import StopRequest
-from mkflight.safety.pilot import PilotWatch
+from mkflight.safety.pilot import PPM_PERIOD_S, PilotWatch
 from mkflight.urg.driver import UrgDriver
 
 log = structlog.get_logger("mkflight.flight")
 
 STOP_DEADLINE_S = 9.0
 """After a stop request, release regardless if the landing has not ended by then (SPEC: 10 s)."""
+PPM_PERIOD_NS = round(PPM_PERIOD_S * NS_PER_S)
 ATTITUDE_HISTORY = 64  # DebugOut samples kept for the attitude at a scan's time (~3 s)
 HANDSHAKE_CONFIRMS = 3  # confirms of neutral frames needed before take-off
 SETTLE_S = 3.0  # HOLD precision counts from this long after HOLD begins (as sim hover)
@@ -156,6 +158,7 @@ class FlightApp:
         self.gc_watch = GcWatch()
         self.pilot = PilotWatch(cfg.safety.pilot_stick_counts)
         self._last_ppm: Ppm | None = None
+        self._next_ppm_ns = 0
         self.cpu0_s = 0.0
         self.wall0_s = 0.0
         self._last_out: ImuStepOutput | None = None
@@ -346,6 +349,18 @@ class FlightApp:
                 self.event(self.clock.now_ns(), "pilot_override", moved=dict(self.pilot.moved))
         return self.pilot.override
 
+    def _ask_sticks(self, t_ns: int) -> None:
+        """The pilot's sticks ('p'), twice a second, right after a command.
+
+        Sent from the step, behind the command: a request on a timer of its own could take
+        the wire just before a command and delay it, and a replay (which has no processing
+        time) would see it take the wire at other moments.
+        """
+        if self.link is not None and t_ns >= self._next_ppm_ns:
+            self._next_ppm_ns = t_ns + PPM_PERIOD_NS
+            with contextlib.suppress(LinkError):  # a dead port is the MK task's to report
+                self.link.request_ppm()
+
     def _send(self, command: Command) -> None:
         assert self.link is not None
         if command.take_control and self.link.control_blocked is not None:
@@ -383,6 +398,7 @@ class FlightApp:
         written0 = self._last_cmd_write_ns
         self._send(out.command)
         written = self._last_cmd_write_ns if self._last_cmd_write_ns != written0 else None
+        self._ask_sticks(sample.t_ns)
         self.notifier.watchdog()
         self._log_step(sample, out)
         self.stats.on_step(sample.t_ns, written, self.clock.now_ns())

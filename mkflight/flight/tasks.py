@@ -3,7 +3,7 @@
 * :func:`mk_task` - one flight step per DebugOut, until the phase machine releases;
 * :func:`laser_task` - scans to the matcher process, results queued for the next step;
 * :func:`watchdog_task` - a timer that only watches: ``--duration``, the stop deadline,
-  the pilot's sticks ('p' twice a second), the status line and systemd's STATUS.
+  the status line and systemd's STATUS.
 """
 
 from __future__ import annotations
@@ -19,7 +19,6 @@ from mkflight.control.phases import Phase
 from mkflight.errors import FlightError, LinkError
 from mkflight.flight.matcher_worker import MatcherError
 from mkflight.safety.failsafe import StopRequest
-from mkflight.safety.pilot import PPM_PERIOD_S
 
 if TYPE_CHECKING:
     from mkflight.flight.app import FlightApp
@@ -105,7 +104,7 @@ async def laser_task(app: FlightApp) -> None:
 
 async def watchdog_task(app: FlightApp) -> None:
     """Duration, stop deadline, status line and STATUS: a timer that only watches."""
-    next_status = next_ppm = 0.0
+    next_status = 0.0
     loop = asyncio.get_running_loop()  # its time: the lock-step clock in a replay
     while True:
         await asyncio.sleep(WATCH_PERIOD_S)
@@ -115,10 +114,6 @@ async def watchdog_task(app: FlightApp) -> None:
         if duration_s is not None and elapsed_s >= duration_s and app.stop_request is None:
             app.request_stop(StopRequest.DURATION, f"--duration {duration_s:g} s")
         check_deadline(app)
-        if loop.time() >= next_ppm and app.link is not None:
-            next_ppm = loop.time() + PPM_PERIOD_S
-            with contextlib.suppress(LinkError):  # a dead port is the MK task's to report
-                app.link.request_ppm()
         if loop.time() >= next_status:
             next_status = loop.time() + STATUS_PERIOD_S
             app.show_status()

@@ -2,7 +2,7 @@
 
 Every scenario is a real flight: ``mkflight sim`` in its own process serves the FC and
 the URG on ptys (with scheduled faults), and ``mkflight fly`` flies them as it would fly
-hardware. The flights are slow (real time), so the module starts them all at once in
+hardware. The flights are slow (real time), so the module flies them five at a time in
 one fixture and the tests then read their outcomes: exit code, stderr, the flight folder
 (tables, events, flight.json, raw recordings) and the simulator's truth.
 """
@@ -10,6 +10,7 @@ one fixture and the tests then read their outcomes: exit code, stderr, the fligh
 from __future__ import annotations
 
 import json
+import queue
 import signal
 import subprocess
 import sys
@@ -32,7 +33,7 @@ from tests.integration.recorded import commands_sent
 MKFLIGHT = [sys.executable, "-m", "mkflight"]
 GAS_MAX = 130  # control.gas_max, the default config
 FLIGHT_TIMEOUT_S = 150.0
-STAGGER_S = 1.0  # between the flights' starts (see _run_all)
+MAX_AT_ONCE = 5  # flights flown side by side (see _run_all)
 
 
 @dataclass
@@ -58,9 +59,9 @@ class Outcome:
     sigterm_to_exit_s: float | None = None
 
 
-SCENARIOS = [
-    Scenario("readme", ["--sim", "--duration", "30"], external=False),
+SCENARIOS = [  # the longest first: five fly at a time (see _run_all)
     Scenario("hover60", ["--duration", "60", "--height", "0.6"]),
+    Scenario("readme", ["--sim", "--duration", "30"], external=False),
     Scenario("sigterm", [], sigterm_after_s=16.0),
     Scenario("fc_vanish", [], faults=["fc-vanish@14"]),
     Scenario("laser_stall", ["--duration", "40"], faults=["laser-stall@14:30"]),
@@ -94,21 +95,32 @@ def _read_paths(proc: subprocess.Popen[str]) -> tuple[str, str]:
 
 
 def _run_all(base: Path) -> dict[str, Outcome]:
-    """Start every scenario at once; wait for all; return their outcomes.
+    """Fly every scenario, at most ``MAX_AT_ONCE`` at a time; return their outcomes.
 
-    The flights run side by side; SIGTERM goes out from a timer thread at its time; a
-    thread per flight waits for its exit (``communicate``), so nothing polls or sleeps.
+    Each flight is a simulator and a daemon in real time, plus the daemon's matcher
+    process, which runs niced: nine at once on two cores starved a matcher of CPU for
+    300 ms now and then (a laser_stale landing, twice in six runs), so a new flight starts
+    when one ends. A thread per flight waits for its exit (``communicate``) and reports it
+    on a queue the main thread blocks on; SIGTERM goes out from a timer thread at its time.
+    Nothing polls or sleeps.
     """
-    running: dict[str, tuple[Scenario, subprocess.Popen[str], subprocess.Popen[str] | None]] = {}
     t0 = time.monotonic()
     term_sent: dict[str, float] = {}
     timers: list[threading.Timer] = []
-    for k, sc in enumerate(SCENARIOS):
-        if k:
-            # Spread the starts: each pre-flight spawns the matcher process (~1 s of CPU
-            # importing numpy and scipy); nine at once on two cores starve the others'
-            # take-off of laser poses (a laser_stale landing before HOLD, seen once).
-            time.sleep(STAGGER_S)
+    sims: dict[str, subprocess.Popen[str] | None] = {}
+    finished: dict[str, tuple[int, str, str, float]] = {}
+    done_q: queue.Queue[str] = queue.Queue()
+
+    def wait(name: str, proc: subprocess.Popen[str]) -> None:
+        try:
+            out, err = proc.communicate(timeout=FLIGHT_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+        finished[name] = (proc.returncode, out, err, time.monotonic())
+        done_q.put(name)
+
+    def start(sc: Scenario) -> None:
         started = time.monotonic()
         folder = base / sc.name
         sim: subprocess.Popen[str] | None = None
@@ -128,7 +140,8 @@ def _run_all(base: Path) -> dict[str, Outcome]:
             text=True,
             stdin=subprocess.DEVNULL,
         )
-        running[sc.name] = (sc, fly, sim)
+        sims[sc.name] = sim
+        threading.Thread(target=wait, args=(sc.name, fly)).start()
         if sc.sigterm_after_s is not None:
 
             def term(name: str = sc.name, proc: subprocess.Popen[str] = fly) -> None:
@@ -140,36 +153,29 @@ def _run_all(base: Path) -> dict[str, Outcome]:
             )
             timer.start()
             timers.append(timer)
-    finished: dict[str, tuple[str, str, float]] = {}
 
-    def wait(name: str, proc: subprocess.Popen[str]) -> None:
-        try:
-            out, err = proc.communicate(timeout=FLIGHT_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, err = proc.communicate()
-        finished[name] = (out, err, time.monotonic())
-
-    waiters = [
-        threading.Thread(target=wait, args=(name, fly)) for name, (_, fly, _) in running.items()
-    ]
-    for w in waiters:
-        w.start()
-    for w in waiters:
-        w.join()
-    outcomes: dict[str, Outcome] = {}
-    for name, (_, fly, sim) in running.items():
-        out, err, done = finished[name]
+    pending = list(SCENARIOS)
+    running = 0
+    while pending or running:
+        while pending and running < MAX_AT_ONCE:
+            start(pending.pop(0))
+            running += 1
+        name = done_q.get()  # a flight ended: its simulator goes, the next one starts
+        running -= 1
+        sim = sims[name]
         if sim is not None:
             sim.send_signal(signal.SIGTERM)
             sim.communicate(timeout=10)
-        outcomes[name] = Outcome(
-            code=fly.returncode,
+    outcomes: dict[str, Outcome] = {}
+    for sc in SCENARIOS:
+        code, out, err, done = finished[sc.name]
+        outcomes[sc.name] = Outcome(
+            code=code,
             stdout=out,
             stderr=err,
-            folder=base / name,
+            folder=base / sc.name,
             wall_s=done - t0,
-            sigterm_to_exit_s=done - term_sent[name] if name in term_sent else None,
+            sigterm_to_exit_s=done - term_sent[sc.name] if sc.name in term_sent else None,
         )
     for timer in timers:
         timer.cancel()
@@ -255,7 +261,7 @@ def test_external_ptys_hover_precision_rates_and_columns(flights: dict[str, Outc
     assert len(read_table4(o.folder / "imu_50ms.log").rows) == len(steps)
     assert len(read_table3(o.folder / "laser_100ms.log").rows) == len(scans)
     timing = d["timing"]
-    # Seven flights and six simulators share two cores in this module: a late DebugOut now
+    # Five flights and their simulators share two cores in this module: a late DebugOut now
     # and then is the machine's (the benchmark measures missed steps on a quiet machine).
     assert timing["missed_steps"] <= 0.01 * timing["steps"]
     _assert_commands_safe(o.folder)
