@@ -407,3 +407,17 @@ def test_every_recorded_flight_replays_byte_for_byte(
     for t in r.tables:
         assert t.equal, t
     assert r.flight.exit_code == o.code
+
+
+def test_the_sticks_are_asked_for_twice_a_second_right_behind_a_command(
+    flights: dict[str, Outcome],
+) -> None:
+    """The 'p' request never takes the wire in front of a command: each one follows an
+    ExternControl, about every 0.5 s of the flight."""
+    writes = [r for r in read_raw(flights["readme"].folder / "mk.raw").records if r.kind == "w"]
+    asks = [i for i, r in enumerate(writes) if r.data[2:3] == b"p"]
+    assert asks
+    assert all(writes[i - 1].data[:3] == b"#bb" for i in asks)
+    gaps_s = np.diff([writes[i].t_ns for i in asks]) / 1e9
+    assert np.all(gaps_s >= 0.5)
+    assert np.median(gaps_s) < 0.6
