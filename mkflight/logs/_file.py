@@ -11,6 +11,23 @@ from pathlib import Path
 from types import TracebackType
 from typing import Self, TextIO
 
+from mkflight.errors import ReplayError
+
+
+def read_lines(path: Path) -> tuple[list[str], bool]:
+    """The complete lines of a text log, and whether a last line was cut short (dropped).
+
+    Raises:
+        ReplayError: the file cannot be read or is not UTF-8 (naming it).
+    """
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        msg = f"{path}: cannot read: {err}"
+        raise ReplayError(msg) from err
+    lines = text.split("\n")
+    return lines[:-1], lines[-1] != ""
+
 
 class LineFile:
     """A new text file in a flight folder that writes and flushes whole lines."""

@@ -20,7 +20,7 @@ from typing import Any
 import msgspec
 
 from mkflight.errors import ReplayError
-from mkflight.logs._file import LineFile
+from mkflight.logs._file import LineFile, read_lines
 
 FILE_NAME = "events.jsonl"
 
@@ -96,15 +96,9 @@ def read_events(path: str | Path) -> EventsData:
             with an integer ``t_ns`` and a string ``event``; names the file and line.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        msg = f"{path}: cannot read: {err}"
-        raise ReplayError(msg) from err
-    lines = text.split("\n")
-    truncated = lines[-1] != ""
+    lines, truncated = read_lines(path)
     events: list[Event] = []
-    for line_no, line in enumerate(lines[:-1], start=1):
+    for line_no, line in enumerate(lines, start=1):
         if not line.strip():
             continue
         try:

@@ -39,6 +39,7 @@ from mkflight.config import MkConfig
 from mkflight.errors import ProtocolError, ReplayError
 from mkflight.logs import events as events_log
 from mkflight.logs import flight_json, table3, table4
+from mkflight.logs._file import read_lines
 from mkflight.logs._table import TableData
 from mkflight.logs.events import Event, read_events
 from mkflight.logs.raw import RawRecording, read_raw
@@ -438,17 +439,12 @@ def _samples(mk: RawRecording, t0_ns: int, cal: MkCalibration, warnings: list[st
 
 def _read_truth(path: Path, t0_ns: int | None, warnings: list[str]) -> Array:
     """``truth.txt`` (mkflight.sim.world): ``t x y z`` rows, ``t`` s since ``# t0_ns N``."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        msg = f"{path}: cannot read: {err}"
-        raise ReplayError(msg) from err
-    lines = text.split("\n")
-    if lines[-1]:
-        warnings.append(f"{path}:{len(lines)}: incomplete last row dropped")
+    lines, cut = read_lines(path)
+    if cut:
+        warnings.append(f"{path}:{len(lines) + 1}: incomplete last row dropped")
     origin_ns = 0  # no comment: 't' is the clock's own seconds (sim hover)
     rows: list[tuple[float, ...]] = []
-    for line_no, line in enumerate(lines[:-1], start=1):
+    for line_no, line in enumerate(lines, start=1):
         words = line.split()
         if not words or (line_no == 1 and words == ["t", "x", "y", "z"]):
             continue
