@@ -292,6 +292,9 @@ class FlightApp:
     async def before_ready(self) -> None:
         """Do nothing (in flight); a replay waits here until the recorded READY time."""
 
+    async def before_subscribe(self) -> None:
+        """Do nothing (in flight); a replay waits for the recorded time of the MK task's 'd'."""
+
     def scan_wanted(self, seq: int) -> bool:
         """Whether the laser task matches scan ``seq``: here, always.
 

@@ -41,6 +41,7 @@ async def mk_task(app: FlightApp) -> None:
     # The link hands control back after mk_release_s without DebugOut; a little later
     # the flight ends (well inside systemd's WatchdogSec = 2 s).
     timeout_s = app.cfg.safety.mk_release_s + 0.3
+    await app.before_subscribe()
     link.subscribe()  # a fresh subscription: pre-flight may have outlasted the last one
     while True:
         try:

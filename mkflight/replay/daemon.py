@@ -121,11 +121,13 @@ class ReplayApp(FlightApp):
         scans: dict[int, RecordedScan],
         use_recorded_poses: bool,
         ready_ns: int | None = None,
+        subscribe_ns: int | None = None,
         step_stops: list[tuple[int, StopRequest, str]] | None = None,
     ) -> None:
         super().__init__(cfg, opts, clock=clock, notifier=Notifier(None))
         self.feeder = feeder
         self._ready_ns = ready_ns
+        self._subscribe_ns = subscribe_ns
         self._step_stops = sorted(step_stops or [], key=lambda s: s[0])
         self._steps = {seq: s.step for seq, s in scans.items() if s.step is not None}
         got = {seq: t for seq, s in scans.items() if (t := s.back_ns) is not None}
@@ -161,6 +163,18 @@ class ReplayApp(FlightApp):
         """Wait (on the lock-step clock) until the original flight's READY."""
         if self._ready_ns is not None:
             wait_ns = self._ready_ns - self.clock.now_ns()
+            if wait_ns > 0:
+                await asyncio.sleep(wait_ns / NS_PER_S)
+
+    async def before_subscribe(self) -> None:
+        """The MK task's first 'd' goes out when it went out in flight.
+
+        The task started some ms after READY there; a DebugOut sent at once in answer can
+        find the wire still busy with the 'd' and queue, so that the next command replaces
+        it: the frame numbers depend on that time.
+        """
+        if self._subscribe_ns is not None:
+            wait_ns = self._subscribe_ns - self.clock.now_ns()
             if wait_ns > 0:
                 await asyncio.sleep(wait_ns / NS_PER_S)
 

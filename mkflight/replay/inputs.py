@@ -97,6 +97,8 @@ class RecordedFlight:
     recordings: dict[str, RawRecording]
     scans: dict[int, RecordedScan]
     ready_ns: int | None = None
+    #: when the MK task's first 'd' (DebugOut subscription) went out after READY
+    subscribe_ns: int | None = None
     #: the flight ended by itself (flight.json has its summary); else it was killed
     completed: bool = True
     #: operator stops seen in flight: (steps run when it came, request, reason)
@@ -186,6 +188,19 @@ def _events(folder: Path, warnings: list[str]) -> _EventInputs:
     return out
 
 
+def _first_subscribe(mk: RawRecording, ready_ns: int | None) -> int | None:
+    """The first 'd' request written at or after READY (within 1 s), if recorded."""
+    if ready_ns is None:
+        return None
+    for r in mk.records:
+        if r.kind == "w" and ready_ns <= r.t_ns <= ready_ns + 1_000_000_000:
+            if r.data[2:3] == b"d":
+                return r.t_ns
+        elif r.t_ns > ready_ns + 1_000_000_000:
+            break
+    return None
+
+
 def _port_inputs(port: str, rec: RawRecording) -> list[Input]:
     out: list[Input] = []
     for r in rec.records:
@@ -239,6 +254,7 @@ def read_recorded_flight(folder: str | Path) -> RecordedFlight:
         recordings=recordings,
         scans=ev.scans,
         ready_ns=ev.ready_ns,
+        subscribe_ns=_first_subscribe(recordings["mk"], ev.ready_ns),
         completed=completed,
         step_stops=ev.step_stops,
         warnings=warnings,

