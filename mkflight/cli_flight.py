@@ -78,6 +78,12 @@ def add_flight_commands(
         help="inject a fault T s after start, e.g. laser-stall@20:2, fc-vanish@30, battery@25:10.0",
     )
     sim.add_argument(
+        "--faults-on-sigusr1",
+        action="store_true",
+        help="count the --fault times from a SIGUSR1 instead of the start (a test arms "
+        "them once the vehicle hovers)",
+    )
+    sim.add_argument(
         "--duration", dest="live_duration", type=float, metavar="S", help="stop after S s"
     )
     sim.add_argument(
@@ -89,6 +95,7 @@ def add_flight_commands(
         func=command(
             "mkflight.commands.sim_run:cmd_sim",
             exit_on_eof="exit_on_eof",
+            faults_on_sigusr1="faults_on_sigusr1",
             seed="live_seed",
             mk_link="mk_link",
             laser_link="laser_link",

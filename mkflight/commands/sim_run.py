@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import math
 import os
+import signal
 import sys
 from typing import TYPE_CHECKING
 
@@ -32,6 +33,7 @@ def cmd_sim(
     faults: list[str],
     duration_s: float | None,
     exit_on_eof: bool = False,
+    faults_on_sigusr1: bool = False,
 ) -> int:
     """Run the live simulator (:class:`~mkflight.sim.live.LiveSim`) until stopped.
 
@@ -57,6 +59,7 @@ def cmd_sim(
             faults=schedule,
             duration_s=duration_s,
             exit_on_eof=exit_on_eof,
+            faults_on_sigusr1=faults_on_sigusr1,
         )
     )
 
@@ -71,6 +74,7 @@ async def _serve(
     faults: list[Fault],
     duration_s: float | None,
     exit_on_eof: bool,
+    faults_on_sigusr1: bool = False,
 ) -> int:
     """Start, print the two paths, serve until a signal, the duration or the stdin's end.
 
@@ -83,6 +87,10 @@ async def _serve(
     stop = stop_on_signals()
     if exit_on_eof:
         _stop_on_stdin_eof(stop)
+    fault_clock: asyncio.Event | None = None
+    if faults_on_sigusr1:
+        fault_clock = asyncio.Event()
+        asyncio.get_running_loop().add_signal_handler(signal.SIGUSR1, fault_clock.set)
     sim = LiveSim(
         cfg,
         seed=seed,
@@ -91,6 +99,7 @@ async def _serve(
         truth_path=truth,
         truth_origin_ns=0,  # t = host monotonic seconds, the flight logs' own time base
         faults=faults,
+        fault_clock=fault_clock,
     )
     mk_path, laser_path = await sim.start()
     try:

@@ -413,6 +413,8 @@ class FlightApp:
             stopping=self.stop_request is not None,
         )
         self._last_out = out
+        for pe in out.phase_events:  # the journal (--log-level info) shows the flight's course
+            log.info("phase", to=pe.to_phase.name, reason=pe.reason)
         if self.on_step is not None:
             self.on_step(out)
         return out

@@ -122,6 +122,7 @@ class FlightCore:
         self._blind_since_ns: int | None = None
         self._index3 = 0
         self._index4 = 0
+        self._first_ns: int | None = None  # the first step's time: failsafe times count from it
         self._hold_offset_m = (0.0, 0.0)
         self.active_setpoint: Setpoint | None = None
         """The set-point the controller was given on the last step (HOLD: with the offset)."""
@@ -142,7 +143,7 @@ class FlightCore:
         self.counters.invalid_steps += 1
         if self._blind_since_ns is None:
             self._blind_since_ns = t_ns
-            self.counters.failsafe_events.append(f"{t_ns / NS_PER_S:.2f}s blind descent")
+            self.counters.failsafe_events.append(f"{self._since_s(t_ns)} blind descent")
         if (t_ns - self._blind_since_ns) / NS_PER_S >= BLIND_DESCENT_S:
             return Command(t_ns, 0, 0, 0, 0, take_control=False)  # the pilot's sticks rule
         return Command(t_ns, 0, 0, 0, _blind_gas(self.cfg), take_control=take_control)
@@ -199,6 +200,13 @@ class FlightCore:
             self._index3,
         )
 
+    def _since_s(self, t_ns: int) -> str:
+        """``t+12.35s``: seconds since the first step, for the failsafe lines.
+
+        Not the host's monotonic seconds, which mean nothing to a reader.
+        """
+        return f"t+{(t_ns - (self._first_ns or t_ns)) / NS_PER_S:.2f}s"
+
     def imu_step(
         self,
         imu: ImuSample,
@@ -212,6 +220,8 @@ class FlightCore:
         """One DebugOut: estimate, failsafe, phase, command (see the module docstring)."""
         self.counters.imu_steps += 1
         t_ns = imu.t_ns
+        if self._first_ns is None:
+            self._first_ns = t_ns
         self._now_ns = max(self._now_ns, t_ns)
         est = self.estimator.on_imu(imu)
         fresh = est.t_ns == t_ns  # the estimator took this sample (else: stale estimate)
@@ -326,7 +336,7 @@ class FlightCore:
             phase, phase_events = Phase.RELEASED, (*phase_events, event)
         self.last_command = command
         self.counters.failsafe_events += [
-            f"{e.t_ns / NS_PER_S:.2f}s {e.action.name} {_cause(e.cause)}" for e in fs.events
+            f"{self._since_s(e.t_ns)} {e.action.name} {_cause(e.cause)}" for e in fs.events
         ]
         s = sticks or PilotSticks()
         self._index4 += 1

@@ -193,7 +193,7 @@ class DebugSubscription:
         self._stats.stale_releases += 1
         log.error("mk_stale_release", port=self._port, stale_s=self.stale_for_s())
         await self._tx.release()
-        self._tx.block("no DebugOut: control handed back to the pilot")
+        self._tx.block(f"no DebugOut for {self._settings.release_after_stale_s:g} s")
         # Renewing 'd' would reload the FC's hold on a command our release may not have
         # reached: stay quiet until the FC has certainly dropped it.
         self._renew_after_ns = self._clock.now_ns() + int(FC_HOLD_S * NS_PER_S)

@@ -256,7 +256,7 @@ class FcModel(UartCounters):
             except ProtocolError:
                 self.rx_malformed += 1
                 return
-            self.controls.last_extern = ec
+            self.controls.receive(ec)
             self._confirm_frame = int(ec.frame)  # 0 cancels a confirm not yet sent (§5.3)
         elif cmd == "a":
             if frame.payload and frame.payload[0] < ANALOG_COUNT:

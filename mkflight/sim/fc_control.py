@@ -9,6 +9,7 @@ tick number, given by the caller.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Final
@@ -55,6 +56,13 @@ class FcControls:
         self.settings = settings
         self._ppm = [0] * PPM_CHANNELS
         self._ppm[CH_GAS] = settings.stick_gas - STICK_GAS_OFFSET
+        # What a fault test checks at the FC's end of the wire: every ExternControl taken.
+        self.extern_frames = 0
+        self.max_tilt_counts = 0.0  # |(nick, roll)|
+        self.max_yaw_counts = 0
+        self.max_gas_counts = 0
+        self.min_gas_counts = 255
+        self.released_by = ""  # what last ended extern control: command, hold counter, reboot
         self.reset()
 
     def reset(self) -> None:
@@ -65,6 +73,19 @@ class FcControls:
         self.last_extern: ExternControl | None = None
         self._hold_tick = 0
         self._hold_counts = HOLD_BOOT_COUNTS
+        self.released_by = "reboot"
+
+    def receive(self, ec: ExternControl) -> None:
+        """An ExternControl frame was taken: store it and note its values (see __init__)."""
+        self.last_extern = ec
+        self.extern_frames += 1
+        nick, roll, yaw, gas = int(ec.nick), int(ec.roll), int(ec.yaw), int(ec.gas)
+        self.max_tilt_counts = max(self.max_tilt_counts, math.hypot(nick, roll))
+        self.max_yaw_counts = max(self.max_yaw_counts, abs(yaw))
+        self.max_gas_counts = max(self.max_gas_counts, gas)
+        self.min_gas_counts = min(self.min_gas_counts, gas)
+        if not int(ec.config) & EC_VALID:
+            self.released_by = "command"
 
     # ----------------------------------------------------------------- hold
     def reload_hold(self, tick: int) -> None:
@@ -85,6 +106,7 @@ class FcControls:
         ec = self.last_extern
         if ec is not None and self.extern_requested and tick >= self.hold_zero_tick():
             self.last_extern = replace(ec, config=0)
+            self.released_by = "hold counter"
 
     # ----------------------------------------------------------------- extern
     @property

@@ -187,6 +187,7 @@ class LiveSim:
         faults: Sequence[Fault | str] = (),
         room: Room | None = None,
         stick_gas_with_extern_only: bool = True,
+        fault_clock: asyncio.Event | None = None,
     ) -> None:
         """Check the fault schedule; nothing runs before :meth:`start`.
 
@@ -201,6 +202,7 @@ class LiveSim:
             faults: the schedule, as :class:`Fault` or ``KIND@T[:ARG]`` strings.
             room: the room (default :func:`default_room`).
             stick_gas_with_extern_only: the simulated pilot (:mod:`mkflight.sim.world`).
+            fault_clock: if given, the fault times count from when it is set, not the start.
 
         Raises:
             ConfigError: a bad fault string.
@@ -214,12 +216,14 @@ class LiveSim:
         self._truth_origin_ns = truth_origin_ns
         self._stick_gas_with_extern_only = stick_gas_with_extern_only
         self._garbage_rng = np.random.default_rng([self.seed, 2])
+        self._fault_clock = fault_clock
         self._tmpdir: tempfile.TemporaryDirectory[str] | None = None
         self._world: SimWorld | None = None
         self._fc: _WorldFcEmulator | None = None
         self._urg: UrgEmulator | None = None
         self._fault_task: asyncio.Task[None] | None = None
         self._start_s = 0.0
+        self._fault_origin_s = 0.0  # the fault times count from here
         self.fired: list[Fault] = []  # the faults injected so far, in order
         self.faults_done = asyncio.Event()  # set when every scheduled fault has fired
         self.error: BaseException | None = None  # the fault task's crash
@@ -278,7 +282,7 @@ class LiveSim:
             await self.stop()
             msg = f"cannot create the simulator's ptys or links: {err}"
             raise ConfigError(msg) from err
-        self._start_s = time.monotonic()
+        self._start_s = self._fault_origin_s = time.monotonic()
         self._fault_task = asyncio.create_task(self._run_faults(), name="sim-faults")
         self._fault_task.add_done_callback(self._on_fault_task_done)
         log.info("sim started", mk=self._fc.path, laser=self._urg.path, seed=self.seed)
@@ -299,6 +303,17 @@ class LiveSim:
             self._fault_task.cancel()
             await asyncio.gather(self._fault_task, return_exceptions=True)
             self._fault_task = None
+        if self._fc is not None:  # the FC's view of every command it took (fault tests)
+            c = self._fc.model.controls
+            log.info(
+                "sim fc commands",
+                frames=c.extern_frames,
+                max_tilt_counts=round(c.max_tilt_counts, 2),
+                max_yaw_counts=c.max_yaw_counts,
+                max_gas_counts=c.max_gas_counts,
+                min_gas_counts=c.min_gas_counts,
+                extern_active=self._fc.model.extern_active,
+            )
         for emulator in (self._fc, self._urg):
             if emulator is None:
                 continue
@@ -353,8 +368,12 @@ class LiveSim:
     # ----------------------------------------------------------------- faults
     async def _run_faults(self) -> None:
         """Fire each fault at its time (a timer: the schedule is wall-clock by design)."""
+        if self._fault_clock is not None:
+            await self._fault_clock.wait()
+            self._fault_origin_s = time.monotonic()
+            log.info("sim fault clock started", faults=len(self.faults))
         for fault in self.faults:
-            delay_s = self._start_s + fault.at_s - time.monotonic()
+            delay_s = self._fault_origin_s + fault.at_s - time.monotonic()
             if delay_s > 0:
                 await asyncio.sleep(delay_s)
             self.inject(fault)
@@ -390,7 +409,9 @@ class LiveSim:
         }
         actions[fault.kind]()
         self.fired.append(fault)
-        log.info("sim fault", fault=str(fault), t_s=round(time.monotonic() - self._start_s, 3))
+        log.info(
+            "sim fault", fault=str(fault), t_s=round(time.monotonic() - self._fault_origin_s, 3)
+        )
 
     def _garbage(self, n: int) -> bytes:
         """``n`` random bytes (seeded)."""

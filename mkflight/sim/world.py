@@ -45,6 +45,7 @@ from pathlib import Path
 from typing import Final
 
 import numpy as np
+import structlog
 
 from mkflight.clock import NS_PER_S
 from mkflight.config import Config, SimFcConfig
@@ -61,6 +62,8 @@ from mkflight.sim.vehicle_sensors import battery_reading_v, imu_measured_si
 HISTORY_NS: Final = 1_000_000_000  # states kept for requests in the past (scan beams)
 MAX_CHUNK_NS: Final = 10_000_000  # one history entry at least every 10 ms of vehicle time
 MIN_STEP_NS: Final = 200_000  # closer requests are answered from the current state
+log = structlog.get_logger("mkflight.sim")
+
 TRUTH_PERIOD_NS: Final = 50_000_000  # at most one truth row per 50 ms of vehicle time
 TRUTH_HEADER: Final = "t x y z\n"
 
@@ -141,6 +144,7 @@ class SimWorld:
         )
         self._t_ns = t0_ns
         self._sticks = Sticks()
+        self.extern_active = False  # the FC applies ExternControl (logged on each change)
         self._history: deque[tuple[int, VehicleState]] = deque([(t0_ns, self._state)])
         self._truth: TruthLog | None = None
         self._truth_due_ns = t0_ns
@@ -181,6 +185,16 @@ class SimWorld:
         :attr:`stick_gas_with_extern_only`: the pilot's gas stick is down (gas 0).
         """
         fc = self.fc
+        active = fc is not None and not fc.booting and fc.extern_active
+        if active != self.extern_active:  # what a fault test reads: who flies the vehicle
+            self.extern_active = active
+            log.info(
+                "sim fc extern control",
+                active=active,
+                t_s=round(self._t_ns / NS_PER_S, 3),
+                height_m=round(self._state.height_m, 3),
+                by="" if fc is None else "reboot" if fc.booting else fc.controls.released_by,
+            )
         if fc is None or fc.booting:
             return Sticks()
         cmd = fc.effective_command()

@@ -1,0 +1,179 @@
+"""Run ``mkflight`` with a fault injected inside the daemon (the fault campaign's harness).
+
+``python -m tests.faults.inject FAULT [--after-hold-s S] -- ARGS...`` runs
+``mkflight ARGS...`` (the real CLI: argument parsing, exit codes, error lines) in this
+process, with :class:`FaultyApp` standing in for :class:`~mkflight.flight.app.FlightApp`.
+The fault is armed once the flight has held for ``--after-hold-s`` seconds (counted in
+50 ms steps), so it always hits a vehicle in the air. Faults (``FAULTS``):
+
+* ``crash-mk-step``, ``crash-laser``, ``crash-watchdog``: an exception inside that task
+  (the step; the laser task's per-scan check; the watchdog's status refresh);
+* ``crash-mk-reader``, ``crash-laser-reader``: an exception inside the MK link's or the
+  URG driver's reader task (their byte taps run there);
+* ``kill-matcher``: SIGKILL to the scan-matcher process;
+* ``nan-estimate``, ``inf-estimate``, ``huge-estimate``: every DebugOut sample from then on
+  has NaN / inf / 1e300 in its accelerations and attitude, the values the estimate is made of;
+* ``wall-clock-jump``: ``time.time()`` / ``time.time_ns()`` jump an hour ahead (an NTP or
+  RTC step on a board without a clock); the flight must not notice;
+* ``disk-full``: every file the daemon has open in the flight folder now fails with ENOSPC
+  (``/dev/full`` put behind its descriptors with ``dup2``: the kernel's own error on the
+  real write path);
+
+This module replaces the ``FlightApp`` name in :mod:`mkflight.flight.app` before the CLI
+imports it: a test harness, never part of the product.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import multiprocessing
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any, Final
+
+import mkflight.flight.app as app_module
+from mkflight.cli import main as mkflight_main
+from mkflight.control.phases import Phase
+from mkflight.flight.step import ImuStepOutput
+from mkflight.msgs import ImuSample
+
+FAULTS: Final = (
+    "crash-mk-step",
+    "crash-laser",
+    "crash-watchdog",
+    "crash-mk-reader",
+    "crash-laser-reader",
+    "kill-matcher",
+    "nan-estimate",
+    "inf-estimate",
+    "huge-estimate",
+    "wall-clock-jump",
+    "disk-full",
+)
+STEPS_PER_S: Final = 20
+BAD_VALUES: Final = {"nan-estimate": float("nan"), "inf-estimate": float("inf")}
+WALL_JUMP_S: Final = 3600.0
+
+
+class _Injector:
+    """Arms after the hold has lasted long enough, then applies the fault once or on."""
+
+    def __init__(self, fault: str, after_hold_s: float) -> None:
+        self.fault = fault
+        self.after_steps = round(after_hold_s * STEPS_PER_S)
+        self.hold_steps = 0
+        self.armed = False
+        self.fired = False
+        self.folder: Path | None = None
+
+    def on_step(self, out: ImuStepOutput) -> None:
+        if out.phase is Phase.HOLD:
+            self.hold_steps += 1
+        if not self.armed and self.hold_steps >= self.after_steps:
+            self.armed = True
+            sys.stderr.write(f"inject: {self.fault} armed at {time.monotonic():.3f}\n")
+            self._fire_once()
+
+    def _fire_once(self) -> None:
+        """The faults that happen once, from outside the tasks."""
+        if self.fault == "kill-matcher":
+            for child in multiprocessing.active_children():
+                os.kill(child.pid or 0, signal.SIGKILL)
+        elif self.fault == "wall-clock-jump":
+            real_time, real_time_ns = time.time, time.time_ns
+            time.time = lambda: real_time() + WALL_JUMP_S
+            time.time_ns = lambda: real_time_ns() + int(WALL_JUMP_S * 1e9)
+        elif self.fault == "disk-full":
+            self._redirect_folder_fds()
+        self.fired = True
+
+    def _redirect_folder_fds(self) -> None:
+        """Put /dev/full behind every descriptor open on a file in the flight folder."""
+        assert self.folder is not None
+        folder = str(self.folder.resolve())
+        full = os.open("/dev/full", os.O_WRONLY)
+        for fd_name in os.listdir("/proc/self/fd"):
+            try:
+                target = os.readlink(f"/proc/self/fd/{fd_name}")
+            except OSError:
+                continue
+            if target.startswith(folder + "/"):
+                os.dup2(full, int(fd_name))
+        os.close(full)
+
+    def crash(self, where: str) -> None:
+        if self.armed and self.fault == f"crash-{where}":
+            self.fired = True
+            msg = f"injected crash in the {where} task"
+            raise RuntimeError(msg)
+
+    def sample(self, sample: ImuSample) -> ImuSample:
+        if not self.armed:
+            return sample
+        if self.fault in ("nan-estimate", "inf-estimate", "huge-estimate"):
+            bad = BAD_VALUES.get(self.fault, 1e300)
+            return dataclasses.replace(
+                sample, acc_x_mps2=bad, acc_y_mps2=-bad, pitch_rad=bad, roll_rad=bad
+            )
+        return sample
+
+
+def install(fault: str, after_hold_s: float) -> _Injector:
+    """Make :mod:`mkflight.flight.app`'s ``FlightApp`` the faulty one; return its injector."""
+    injector = _Injector(fault, after_hold_s)
+    base = app_module.FlightApp
+
+    class FaultyApp(base):  # type: ignore[valid-type,misc]
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            kwargs.setdefault("on_step", injector.on_step)
+            kwargs.setdefault("sample_filter", injector.sample)
+            super().__init__(*args, **kwargs)
+            injector.folder = Path(self.opts.log_dir)
+
+        def step(self, sample: ImuSample) -> ImuStepOutput:
+            injector.crash("mk-step")
+            out: ImuStepOutput = super().step(sample)
+            return out
+
+        def scan_wanted(self, seq: int) -> bool:
+            injector.crash("laser")
+            wanted: bool = super().scan_wanted(seq)
+            return wanted
+
+        def show_status(self) -> None:
+            injector.crash("watchdog")
+            super().show_status()
+
+        def _mk_tap(self, direction: str, t_ns: int, data: bytes) -> None:
+            super()._mk_tap(direction, t_ns, data)
+            if direction == "r":
+                injector.crash("mk-reader")
+
+        def _laser_tap(self, direction: str, t_ns: int, data: bytes) -> None:
+            super()._laser_tap(direction, t_ns, data)
+            if direction == "r":
+                injector.crash("laser-reader")
+
+    app_module.FlightApp = FaultyApp  # type: ignore[misc]
+    return injector
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m tests.faults.inject")
+    parser.add_argument("fault", choices=FAULTS)
+    parser.add_argument("--after-hold-s", type=float, default=2.0)
+    parser.add_argument("args", nargs=argparse.REMAINDER, help="-- then mkflight's arguments")
+    ns = parser.parse_args(argv)
+    args = ns.args[1:] if ns.args[:1] == ["--"] else ns.args
+    injector = install(ns.fault, ns.after_hold_s)
+    code = mkflight_main(args)
+    sys.stderr.write(f"inject: {ns.fault} fired={injector.fired}\n")
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

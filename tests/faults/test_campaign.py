@@ -1,0 +1,195 @@
+"""The fault campaign (issue 10): every fault of :mod:`tests.faults.campaign`, judged alike.
+
+The flights are real (simulator and daemon in their own processes, on ptys, in real time)
+and fly four at a time in one module fixture; CI flies the scenarios marked ``ci``, and
+``tools/faults.py`` (``MKFLIGHT_FAULTS=all``) flies them all and writes the README's table
+from the verdicts (``MKFLIGHT_FAULTS_REPORT``). Faults that need no flight (NaN, inf and
+huge values in the config and in a recorded flight to replay) are judged here too.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from mkflight.logs import load_flight
+from tests.faults.campaign import (
+    CFG,
+    PY,
+    REPO,
+    SCENARIOS,
+    Flight,
+    Verdict,
+    fly_all,
+    judge,
+    report_row,
+)
+
+
+def _params() -> list[Any]:
+    return [
+        pytest.param(sc.name, id=sc.name, marks=() if sc.ci else (pytest.mark.campaign_full,))
+        for sc in SCENARIOS
+    ]
+
+
+def _selected(session: pytest.Session) -> set[str]:
+    """The scenarios whose tests will run (not skipped), and the baseline for replays."""
+    names: set[str] = set()
+    for item in session.items:
+        if item.get_closest_marker("skip") is not None:
+            continue
+        callspec = getattr(item, "callspec", None)
+        if item.name.startswith("test_fault[") and callspec is not None:
+            names.add(str(callspec.params["name"]))
+        if item.name.startswith("test_bad_values_in_a_recorded_flight"):
+            names.add("baseline")
+    return names
+
+
+@pytest.fixture(scope="module")
+def flights(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> dict[str, Flight]:
+    wanted = _selected(request.session)
+    base = tmp_path_factory.mktemp("faults")
+    return fly_all([sc for sc in SCENARIOS if sc.name in wanted], base)
+
+
+@pytest.mark.parametrize("name", _params())
+def test_fault(name: str, flights: dict[str, Flight]) -> None:
+    flight = flights[name]
+    if flight.skipped is not None:
+        pytest.skip(flight.skipped)
+    verdict = judge(flight)
+    report_row(verdict)
+    tail = "\n".join(flight.stderr.splitlines()[-8:])
+    assert not verdict.problems, f"{verdict.problems}\nstderr tail:\n{tail}"
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [PY, "-m", "mkflight", *args],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        stdin=subprocess.DEVNULL,
+        timeout=120,
+        check=False,
+    )
+
+
+def _value_row(
+    name: str, what: str, proc: subprocess.CompletedProcess[str], problems: list[str]
+) -> Verdict:
+    error = [ln for ln in proc.stderr.splitlines() if ln.startswith("error:")]
+    if "Traceback" in proc.stderr or "internal error" in proc.stderr:
+        problems.append("a traceback or an internal error")
+    return Verdict(
+        name=name,
+        what=what,
+        end="ground",
+        code=proc.returncode,
+        message=error[-1].removeprefix("error:").strip() if error else "",
+        commands=0,
+        max_tilt_counts=0.0,
+        max_gas=0,
+        config0_sent=False,
+        released_by="",
+        logs="none",
+        problems=problems,
+    )
+
+
+BAD_VALUES = ["nan", "inf", "-inf", ".nan", "1e400", "1e300", "'12'", "[1, 2]", "{a: 1}"]
+
+
+@pytest.mark.parametrize("value", BAD_VALUES)
+def test_bad_values_in_the_config_never_fly(value: str, tmp_path: Path) -> None:
+    """``--set`` and a config file: exit 2, one line naming the key, no folder, no flight."""
+    folder = tmp_path / "flight"
+    config = tmp_path / "bad.yaml"
+    config.write_text(f"control:\n  kp_xy: {value}\n", encoding="utf-8")
+    for how, args in (
+        ("--set", ["--set", f"control.kp_xy={value}"]),
+        ("config file", ["--config", str(config)]),
+    ):
+        proc = _cli("fly", "--hover", "--sim", "--log-dir", str(folder), *args)
+        problems: list[str] = []
+        if proc.returncode != 2:
+            problems.append(f"exit {proc.returncode}, expected 2")
+        if "control.kp_xy" not in proc.stderr:
+            problems.append("the message does not name control.kp_xy")
+        if folder.exists():
+            problems.append("a flight folder was created")
+        verdict = _value_row(f"config-{how}-{value}", f"kp_xy = {value} ({how})", proc, problems)
+        if value == "nan" and how == "--set":
+            report_row(verdict)
+        assert not problems, (how, proc.stderr)
+
+
+def _tamper_poses(folder: Path, token: str) -> int:
+    """Put ``token`` in place of x_m in every second scan event after take-off."""
+    path = folder / "events.jsonl"
+    lines = path.read_text(encoding="utf-8").splitlines()
+    changed = 0
+    for i, line in enumerate(lines):
+        if '"event":"scan"' in line.replace(" ", "") and i > len(lines) // 3 and i % 2:
+            new = re.sub(r'"x_m":\s*-?[0-9.e+-]+', f'"x_m":{token}', line)
+            changed += new != line
+            lines[i] = new
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return changed
+
+
+@pytest.mark.parametrize("token", ["NaN", "Infinity", "-Infinity", "1e400", "1e300", "null"])
+def test_bad_values_in_a_recorded_flight(
+    token: str, flights: dict[str, Flight], tmp_path: Path
+) -> None:
+    """Poses in events.jsonl replaced by NaN, inf, huge, null: the replay either refuses the
+    file in one line or flies it; then every command stays in limits and the determinism
+    check reports the difference (exit 1). Never a traceback, never a hang."""
+    source = tmp_path / "flight"
+    shutil.copytree(flights["baseline"].folder, source)
+    assert _tamper_poses(source, token) > 10
+    out = tmp_path / "replayed"
+    proc = _cli("replay", str(source), "--out", str(out))
+    problems: list[str] = []
+    if proc.returncode != 1:
+        problems.append(f"exit {proc.returncode}, expected 1")
+    if out.exists():
+        data = load_flight(out)
+        cmds = data.commands
+        limit = CFG.control.max_tilt_rad * CFG.mk.counts_per_rad + 1.0
+        if len(cmds) == 0:
+            problems.append("the replay wrote no command")
+        elif (
+            max(
+                math.hypot(float(n), float(r))
+                for n, r in zip(cmds["nick"], cmds["roll"], strict=True)
+            )
+            > limit
+            or int(cmds["gas"].max()) > CFG.control.gas_max
+            or int(abs(cmds["yaw"]).max()) > CFG.control.yaw_max_counts
+        ):
+            problems.append("a replayed command out of limits")
+        elif int(cmds["config"][-1]) != 0:
+            problems.append("the replay did not end with Config = 0")
+        summary = json.loads((out / "flight.json").read_text(encoding="utf-8")).get("summary")
+        if not summary:
+            problems.append("the replay's flight.json has no summary")
+    elif not proc.stderr.strip().startswith("error:"):
+        problems.append("neither a replay nor an error line")
+    verdict = _value_row(
+        f"replay-{token}", f"pose x = {token} in a recording, replayed", proc, problems
+    )
+    if token in ("NaN", "1e400"):
+        report_row(verdict)
+    assert not problems, proc.stderr[-2000:]
