@@ -7,16 +7,17 @@ Pure bookkeeping fed once per step by :mod:`mkflight.flight.app`:
 * **precision estimate**: the std of the estimate minus the set-point (x, y, height) in
   HOLD, from :data:`SETTLE_S` after it began until a stop is requested (as ``sim hover``
   and ``analyze precision`` count). It is the estimate's own view; the simulator's truth
-  gives the real one (``analyze precision --truth``).
+  gives the real one (``analyze precision --truth``). Kept as running sums (Welford), not
+  a list of samples: a flight of hours holds a few numbers (the soak, issue 10, found the
+  list growing by ~5 MB in 30 minutes).
 """
 
 from __future__ import annotations
 
 import gc
+import math
 import time
 from dataclasses import dataclass, field
-
-import numpy as np
 
 from mkflight.clock import NS_PER_S
 from mkflight.control.controller import Setpoint
@@ -36,7 +37,9 @@ class HoldMonitor:
     _cpu_start: _Clocks | None = None
     _cpu_end: _Clocks | None = None
     _t0_ns: int | None = None
-    _errors: list[tuple[float, float, float]] = field(default_factory=list)
+    _n: int = 0
+    _mean: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    _m2: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
 
     def _clocks(self) -> _Clocks:
         return time.process_time(), time.perf_counter(), self.matcher_cpu_s
@@ -54,7 +57,15 @@ class HoldMonitor:
         if self._t0_ns is None:
             self._t0_ns = t_ns
         if (t_ns - self._t0_ns) / NS_PER_S >= SETTLE_S and not stopping:
-            self._errors.append((est.x_m - sp.x_m, est.y_m - sp.y_m, est.height_m - sp.height_m))
+            self._add((est.x_m - sp.x_m, est.y_m - sp.y_m, est.height_m - sp.height_m))
+
+    def _add(self, errors: tuple[float, float, float]) -> None:
+        """Welford's update of the per-axis mean and sum of squared deviations."""
+        self._n += 1
+        for i, e in enumerate(errors):
+            delta = e - self._mean[i]
+            self._mean[i] += delta / self._n
+            self._m2[i] += delta * (e - self._mean[i])
 
     def cpu_percent(self) -> dict[str, float] | None:
         """Daemon and matcher CPU during HOLD, % of one core (None without a HOLD)."""
@@ -72,14 +83,14 @@ class HoldMonitor:
 
     def precision(self) -> dict[str, float | int] | None:
         """Std of the HOLD errors per axis (None with fewer than two samples)."""
-        if len(self._errors) < 2:
+        if self._n < 2:
             return None
-        std = np.std(np.asarray(self._errors), axis=0)
+        std = [math.sqrt(max(0.0, m2) / self._n) for m2 in self._m2]  # population std
         return {
-            "std_x_m": round(float(std[0]), 5),
-            "std_y_m": round(float(std[1]), 5),
-            "std_z_m": round(float(std[2]), 5),
-            "samples": len(self._errors),
+            "std_x_m": round(std[0], 5),
+            "std_y_m": round(std[1], 5),
+            "std_z_m": round(std[2], 5),
+            "samples": self._n,
         }
 
 
