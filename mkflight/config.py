@@ -214,6 +214,27 @@ class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
     sim: SimConfig = msgspec.field(default_factory=SimConfig)
 
 
+class _YamlLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, plus YAML 1.2's exponent floats without a dot (``1e-3``).
+
+    YAML 1.1, which PyYAML follows, reads ``1e-3`` as the string "1e-3", and a gain
+    written that way would be refused as "got str".
+    """
+
+
+_YamlLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
+_NON_FINITE = re.compile(r"[-+]?(?:nan|inf|infinity)", re.IGNORECASE)
+
+
+def _load_yaml(text: str) -> Any:
+    """Parse YAML safely (never a Python object tag), with :class:`_YamlLoader`."""
+    return yaml.load(text, Loader=_YamlLoader)  # a SafeLoader: no Python tags
+
+
 def _check_finite(obj: Any, path: str, source: str) -> None:
     """Reject NaN/inf anywhere: YAML's ``.nan`` would otherwise pass every range check."""
     if isinstance(obj, float) and not math.isfinite(obj):
@@ -292,10 +313,12 @@ def parse_override(item: str) -> tuple[list[str], Any]:
         msg = f"--set {item!r}: malformed key {key!r}"
         raise ConfigError(msg)
     try:
-        value = yaml.safe_load(raw) if raw.strip() else ""
+        value = _load_yaml(raw) if raw.strip() else ""
     except yaml.YAMLError as err:
         msg = f"--set {key}: cannot parse value {raw!r}"
         raise ConfigError(msg) from err
+    if isinstance(value, str) and _NON_FINITE.fullmatch(value.strip()):
+        value = float(value)  # --set k=nan: refused as not finite, naming the key
     return parts, value
 
 
@@ -332,7 +355,7 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
             msg = f"{source}: not UTF-8 text (byte {err.start}): {err.reason}"
             raise ConfigError(msg) from err
         try:
-            data = yaml.safe_load(text)
+            data = _load_yaml(text)
         except yaml.YAMLError as err:
             msg = f"{source}: invalid YAML: {err}"
             raise ConfigError(msg) from err

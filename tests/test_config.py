@@ -257,3 +257,33 @@ def test_non_utf8_file_names_the_file(tmp_path: Path) -> None:
     path.write_bytes(b"control:\n  kp_xy: 1 # \xe9t\xe9\n")
     with pytest.raises(ConfigError, match=re.escape(str(path))):
         load_config(path)
+
+
+@pytest.mark.parametrize(("text", "value"), [("1e-3", 1e-3), ("2E2", 200.0), ("-1.5e-2", -1.5e-2)])
+def test_exponent_floats_without_a_dot_are_numbers(tmp_path: Path, text: str, value: float) -> None:
+    """YAML 1.1 reads ``1e-3`` as a string; a gain written so is a number here (YAML 1.2)."""
+    path = tmp_path / "c.yaml"
+    path.write_text(f"control:\n  kp_xy: {text}\n")
+    if value < 0:
+        with pytest.raises(ConfigError, match=r"control\.kp_xy: Expected `float` >= 0"):
+            load_config(path)
+        return
+    assert load_config(path).control.kp_xy == pytest.approx(value)
+    assert load_config(None, [f"control.kp_xy={text}"]).control.kp_xy == pytest.approx(value)
+
+
+@pytest.mark.parametrize("text", ["nan", "NaN", "inf", "-inf", "Infinity", "1e400"])
+def test_set_non_finite_is_refused_as_not_finite(text: str) -> None:
+    with pytest.raises(ConfigError, match=r"control\.kp_xy: must be a finite number"):
+        load_config(None, [f"control.kp_xy={text}"])
+
+
+def test_yaml_python_tags_are_refused(tmp_path: Path) -> None:
+    marker = tmp_path / "pwned"
+    path = tmp_path / "c.yaml"
+    path.write_text(f'control: !!python/object/apply:os.system ["touch {marker}"]\n')
+    with pytest.raises(ConfigError, match="invalid YAML"):
+        load_config(path)
+    with pytest.raises(ConfigError):
+        load_config(None, [f'control.kp_xy=!!python/object/apply:os.system ["touch {marker}"]'])
+    assert not marker.exists()
