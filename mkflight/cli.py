@@ -354,7 +354,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as err:  # a bug: still one line, the traceback on request
         if args.debug:
             traceback.print_exc()
-        print(f"error: internal error: {err!r} (run with --debug for details)", file=sys.stderr)
+        print(
+            f"error: internal error: {cli_types.printable(repr(err))} "
+            "(run with --debug for details)",
+            file=sys.stderr,
+        )
         return EXIT_RUNTIME
     return code
 
@@ -362,5 +366,5 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _fail(err: BaseException, code: int, debug: bool) -> int:
     if debug:
         traceback.print_exc()
-    print(f"error: {err}", file=sys.stderr)
+    print(f"error: {cli_types.printable(str(err))}", file=sys.stderr)  # it may quote a log
     return code

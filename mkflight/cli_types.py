@@ -1,6 +1,7 @@
 """Argument types of the ``mkflight`` command line: numbers checked where they are parsed.
 
 A bad value is an argparse usage error (one ``error:`` line, exit 2), never a traceback.
+And :func:`printable`, for what the command line prints that a file it read supplied.
 """
 
 from __future__ import annotations
@@ -51,3 +52,17 @@ def fraction(text: str) -> float:
         msg = f"must be in (0, 1], got {text}"
         raise argparse.ArgumentTypeError(msg)
     return value
+
+
+def printable(text: str) -> str:
+    r"""``text`` with control characters escaped (``\n``, ``\x1b``): one line, inert.
+
+    Messages and reports quote what a log holds (a config key, a stop reason, a table
+    row): a newline in it would split an ``error:`` line, an escape sequence would act on
+    the terminal.
+    """
+    if text.isprintable():
+        return text
+    return "".join(
+        c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text
+    )

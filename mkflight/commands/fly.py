@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
@@ -15,10 +16,27 @@ from mkflight.logs.flight_json import json_safe
 
 
 def _folder(cfg: Config, log_dir: str | None) -> Path:
-    """The flight folder: new or empty (a simulator's ``truth.txt`` may be there already)."""
+    """The flight folder: new or empty (a simulator's ``truth.txt`` may be there already).
+
+    Under ``logging.dir`` its name is made of digits only, so it stays there. Every file
+    in it is then created, never opened if it exists (nor through a symlink planted in
+    the folder): :class:`~mkflight.flight.flight_logs.FlightLogs`.
+
+    Raises:
+        ConfigError: the path is not a folder (a file, a dangling symlink), cannot be
+            listed, or holds something.
+    """
     stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
     folder = Path(log_dir) if log_dir else Path(cfg.logging.dir) / f"flight-{stamp}"
-    if folder_in_use(folder):
+    if os.path.lexists(folder) and not folder.is_dir():
+        msg = f"log dir {str(folder)!r} is not a folder"
+        raise ConfigError(msg)
+    try:
+        in_use = folder_in_use(folder)
+    except OSError as err:
+        msg = f"log dir {str(folder)!r} cannot be read: {err.strerror or err}"
+        raise ConfigError(msg) from err
+    if in_use:
         msg = f"log dir {str(folder)!r} is not empty: a flight folder is never overwritten"
         raise ConfigError(msg)
     return folder

@@ -19,6 +19,7 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
+from mkflight.cli_types import printable
 from mkflight.commands.progress import tty_bar
 from mkflight.errors import ReplayError
 from mkflight.logs.flight_json import json_safe
@@ -243,12 +244,13 @@ def cmd_replay(
             rematch=rematch,
             on_progress=None if as_json else _updater(bar),
         )
+    # The report quotes the log (a stop reason, table rows): escaped, nothing a terminal obeys.
     for w in report.warnings:
-        print(f"warning: {w}", file=sys.stderr)
+        print(f"warning: {printable(w)}", file=sys.stderr)
     if as_json:
         print(json.dumps(json_safe(report_json(report)), allow_nan=False))
     else:
-        print("\n".join(report_lines(report)))
+        print("\n".join(printable(line) for line in report_lines(report)))
     if report.seed is None and not overrides and not report.deterministic:
         msg = "determinism check failed: the replay did not reproduce the recorded commands"
         raise ReplayError(msg)

@@ -1,28 +1,102 @@
-"""The file under every flight-folder log writer: created (never overwritten), line-flushed.
+"""The file under every flight-folder log writer and reader.
 
-A flush per line survives a killed process (SPEC §6); ``close`` also fsyncs, so a clean
-end survives a power cut too.
+Writing: created (never overwritten), line-flushed. A flush per line survives a killed
+process (SPEC §6); ``close`` also fsyncs, so a clean end survives a power cut too.
+
+Reading: a log may come from anywhere (``replay`` is handed other people's folders), so
+the readers take only regular files (:func:`read_bytes`: a FIFO would block them forever,
+a link to ``/dev/zero`` would never end) and refuse JSON nested deeper than any log
+writes (:func:`too_deep`: the code after them recurses).
 """
 
 from __future__ import annotations
 
 import os
+import stat
 from pathlib import Path
 from types import TracebackType
-from typing import Self, TextIO
+from typing import Any, Final, Self, TextIO
 
 from mkflight.errors import ReplayError
+
+#: Deeper JSON than any log writes (flight.json: config section -> list -> value).
+MAX_JSON_DEPTH: Final = 32
+
+
+def read_bytes(path: Path, *, what: str = "", max_bytes: int | None = None) -> bytes:
+    """The content of the regular file ``path`` (a symlink is followed: reading is harmless).
+
+    A FIFO, a device, a socket or a directory is refused, and never opened (opening a
+    serial port can reset what is on it); the open file is checked again (``fstat``),
+    so a rename in between cannot slip one in.
+
+    Args:
+        path: the file.
+        what: what the file holds, for the message ("flight metadata").
+        max_bytes: refuse a larger file (one that is never that large: ``flight.json``).
+
+    Raises:
+        ReplayError: cannot be opened or read, not a regular file, or larger than
+            ``max_bytes``; the message names the file.
+    """
+    cannot = f"{path}: cannot read{' ' + what if what else ''}"
+    not_regular = f"{cannot}: not a regular file"
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            raise ReplayError(not_regular)
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
+    except OSError as err:
+        msg = f"{cannot}: {err}"
+        raise ReplayError(msg) from err
+    with open(fd, "rb") as f:
+        try:
+            st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode):
+                raise ReplayError(not_regular)
+            if max_bytes is not None and st.st_size > max_bytes:
+                msg = f"{cannot}: {st.st_size} bytes, more than the {max_bytes} such a file holds"
+                raise ReplayError(msg)
+            data = f.read() if max_bytes is None else f.read(max_bytes + 1)
+        except OSError as err:
+            msg = f"{cannot}: {err}"
+            raise ReplayError(msg) from err
+    if max_bytes is not None and len(data) > max_bytes:  # it grew while we read
+        msg = f"{cannot}: more than the {max_bytes} bytes such a file holds"
+        raise ReplayError(msg)
+    return data
+
+
+def too_deep(obj: Any, limit: int = MAX_JSON_DEPTH) -> bool:
+    """True if the lists and objects in ``obj`` (decoded JSON) nest more than ``limit`` deep.
+
+    Walks one level at a time, without recursion: what follows a reader (``str()``,
+    msgspec, the config checks) recurses, and a line nested a thousand deep would end it
+    in a ``RecursionError`` instead of an error naming the file.
+    """
+    level = [obj]
+    for _ in range(limit + 1):
+        level = [
+            child
+            for node in level
+            if isinstance(node, dict | list)
+            for child in (node.values() if isinstance(node, dict) else node)
+        ]
+        if not level:
+            return False
+    return True
 
 
 def read_lines(path: Path) -> tuple[list[str], bool]:
     """The complete lines of a text log, and whether a last line was cut short (dropped).
 
     Raises:
-        ReplayError: the file cannot be read or is not UTF-8 (naming it).
+        ReplayError: the file cannot be read, is not a regular file or is not UTF-8
+            (naming it).
     """
+    data = read_bytes(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as err:
         msg = f"{path}: cannot read: {err}"
         raise ReplayError(msg) from err
     lines = text.split("\n")

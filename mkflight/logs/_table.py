@@ -20,9 +20,10 @@ import numpy as np
 import numpy.typing as npt
 
 from mkflight.errors import ReplayError
-from mkflight.logs._file import LineFile
+from mkflight.logs._file import LineFile, read_bytes
 
 Value = float | int
+_INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
 
 
 @dataclass(frozen=True, slots=True)
@@ -123,20 +124,29 @@ def _parse(fmt: TableFormat, path: Path, line_no: int, line: str) -> tuple[Value
         try:
             out.append(_int(text) if name in fmt.int_columns else float(text))
         except ValueError as err:
-            msg = f"{path}:{line_no}: column {name}: cannot parse {text!r}"
+            shown = text if len(text) <= 40 else text[:40] + "..."
+            msg = f"{path}:{line_no}: column {name}: cannot parse {shown!r}"
             raise ReplayError(msg) from err
     return tuple(out)
 
 
 def _int(text: str) -> int:
-    """An integer column: ``12`` or an integral float such as ``12.0`` (other writers)."""
+    """An integer column: ``12`` or an integral float such as ``12.0`` (other writers).
+
+    Raises:
+        ValueError: not an integer, or outside int64 (the reader's dtype).
+    """
     try:
-        return int(text)
+        value = int(text)
     except ValueError:
-        value = float(text)
-        if not value.is_integer():
+        number = float(text)
+        if not number.is_integer():
             raise
-        return int(value)
+        value = int(number)
+    if not _INT64_MIN <= value <= _INT64_MAX:
+        msg = f"{value:.3g} is outside int64"
+        raise ValueError(msg)
+    return value
 
 
 def read_table(path: str | Path, fmt: TableFormat) -> TableData:
@@ -149,9 +159,10 @@ def read_table(path: str | Path, fmt: TableFormat) -> TableData:
             index; the message names the file and the line.
     """
     path = Path(path)
+    data = read_bytes(path)
     try:
-        text = path.read_text(encoding="ascii")
-    except (OSError, UnicodeDecodeError) as err:
+        text = data.decode("ascii")
+    except UnicodeDecodeError as err:
         msg = f"{path}: cannot read: {err}"
         raise ReplayError(msg) from err
     lines = text.split("\n")

@@ -20,7 +20,7 @@ from typing import Any
 import msgspec
 
 from mkflight.errors import ReplayError
-from mkflight.logs._file import LineFile, read_lines
+from mkflight.logs._file import MAX_JSON_DEPTH, LineFile, read_lines, too_deep
 
 FILE_NAME = "events.jsonl"
 
@@ -93,7 +93,8 @@ def read_events(path: str | Path) -> EventsData:
 
     Raises:
         ReplayError: unreadable file, or a complete line that is not an event object
-            with an integer ``t_ns`` and a string ``event``; names the file and line.
+            with an integer ``t_ns`` and a string ``event`` (or is nested more than
+            :data:`~mkflight.logs._file.MAX_JSON_DEPTH` deep); names the file and line.
     """
     path = Path(path)
     lines, truncated = read_lines(path)
@@ -106,9 +107,16 @@ def read_events(path: str | Path) -> EventsData:
         except json.JSONDecodeError as err:
             msg = f"{path}:{line_no}: not JSON: {err.msg}"
             raise ReplayError(msg) from err
+        except ValueError as err:  # a number of more than 4300 digits
+            msg = f"{path}:{line_no}: cannot decode: {err}"
+            raise ReplayError(msg) from err
         except RecursionError as err:  # a line nested thousands deep: not an event
             msg = f"{path}:{line_no}: nested too deeply to be an event"
             raise ReplayError(msg) from err
+        # Less, but still too deep for what reads the fields (fewer brackets cannot be).
+        if line.count("[") + line.count("{") > MAX_JSON_DEPTH and too_deep(obj):
+            msg = f"{path}:{line_no}: nested too deeply to be an event"
+            raise ReplayError(msg)
         if not isinstance(obj, dict):
             msg = f"{path}:{line_no}: expected an object, got {type(obj).__name__}"
             raise ReplayError(msg)

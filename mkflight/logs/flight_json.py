@@ -12,7 +12,8 @@ Format: one JSON object (UTF-8, indented)::
     }
 
 It is written at the start and again with the summary at the end. Each write goes to
-``flight.json.tmp``, is fsynced and renamed over ``flight.json``, so a reader never sees a
+a new ``flight.json.tmp`` (created, so never written through a symlink planted under
+that name), is fsynced and renamed over ``flight.json``, so a reader never sees a
 half-written file. Non-finite floats in the summary (e.g. a precision that could not be
 computed) are written as ``null``: strict JSON has no NaN.
 
@@ -35,11 +36,14 @@ from typing import Any, Final
 import mkflight
 from mkflight.config import Config, config_to_dict
 from mkflight.errors import ReplayError
+from mkflight.logs._file import MAX_JSON_DEPTH, read_bytes, too_deep
 
 FILE_NAME = "flight.json"
 LOG_FORMAT: Final = 1
 """The flight-folder format this mkflight writes and reads (absent from a file: 1)."""
 _KEYS = ("log_format", "start_utc", "mkflight_version", "fc_version", "config", "summary")
+#: A larger file is refused unread: a flight's is a few kB (the config and the summary).
+MAX_BYTES: Final = 16 * 1024 * 1024
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,7 +98,10 @@ def write_flight_json(folder: str | Path, info: FlightInfo) -> Path:
     tmp = path.with_name(FILE_NAME + ".tmp")
     data = {key: json_safe(getattr(info, key)) for key in _KEYS}
     text = json.dumps(data, indent=2, allow_nan=False) + "\n"
-    with tmp.open("w", encoding="utf-8") as f:
+    # A new file ("x": O_EXCL never follows a symlink), so a link planted in the folder
+    # under the tmp name is not written through; one left by a killed write is removed.
+    tmp.unlink(missing_ok=True)
+    with tmp.open("x", encoding="utf-8") as f:
         f.write(text)
         f.flush()
         os.fsync(f.fileno())
@@ -106,20 +113,25 @@ def read_flight_json(path: str | Path) -> FlightInfo:
     """Read a ``flight.json`` (or the one in a flight folder).
 
     Raises:
-        ReplayError: unreadable, not JSON, a key missing or of the wrong type, or a
-            ``log_format`` newer than :data:`LOG_FORMAT`; the message names the file and
-            the key.
+        ReplayError: unreadable, not a regular file, larger than :data:`MAX_BYTES`, not
+            JSON, nested deeper than any flight.json, a key missing or of the wrong type,
+            or a ``log_format`` newer than :data:`LOG_FORMAT`; the message names the file
+            and the key.
     """
     path = Path(path)
     if path.is_dir():
         path = path / FILE_NAME
+    blob = read_bytes(path, what="flight metadata", max_bytes=MAX_BYTES)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        data = json.loads(blob.decode("utf-8"))
+    except (ValueError, RecursionError) as err:  # not UTF-8, not JSON, 4300+ digits, deep
         msg = f"{path}: cannot read flight metadata: {err}"
         raise ReplayError(msg) from err
     if not isinstance(data, dict):
         msg = f"{path}: expected a JSON object, got {type(data).__name__}"
+        raise ReplayError(msg)
+    if too_deep(data):
+        msg = f"{path}: nested more than {MAX_JSON_DEPTH} deep: not flight metadata"
         raise ReplayError(msg)
     expected: dict[str, tuple[type, ...]] = {
         "start_utc": (str,),

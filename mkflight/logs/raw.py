@@ -51,6 +51,7 @@ from typing import BinaryIO, Final, Self
 
 from mkflight.clock import Clock, MonotonicClock
 from mkflight.errors import ReplayError
+from mkflight.logs._file import read_bytes
 
 __all__ = [
     "FORMAT_VERSION",
@@ -312,16 +313,12 @@ def read_raw(path: str | Path) -> RawRecording:
     """Read a whole raw recording (one read; records decoded with ``struct.unpack_from``).
 
     Raises:
-        ReplayError: the file cannot be read, its header is broken (wrong magic, unknown
-            version, cut short, label not UTF-8) or a record has an unknown kind; the
-            message names the file and the byte offset.
+        ReplayError: the file cannot be read or is not a regular file, its header is
+            broken (wrong magic, unknown version, cut short, label not UTF-8) or a
+            record has an unknown kind; the message names the file and the byte offset.
     """
     path = Path(path)
-    try:
-        blob = path.read_bytes()
-    except OSError as err:
-        msg = f"{path}: cannot read: {err}"
-        raise ReplayError(msg) from err
+    blob = read_bytes(path)
     header, offset = _parse_header(path, blob)
     records: list[RawRecord] = []
     append = records.append

@@ -16,7 +16,9 @@ Pure reading, no I/O beyond the files (SPEC §6). From a flight folder:
 * ``flight.json`` -> the configuration flown.
 
 Bad input is a :class:`~mkflight.errors.ReplayError` naming the file and the byte offset
-or line; a tail cut short by a killed process is dropped with a warning.
+or line (as is a time the lock-step loop cannot run at,
+:data:`~mkflight.replay.vloop.MAX_T_NS`: the replay would wait for it forever); a tail
+cut short by a killed process is dropped with a warning.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from mkflight.logs.events import read_events
 from mkflight.logs.flight_json import read_flight_json
 from mkflight.logs.raw import RawRecording, read_raw
 from mkflight.msgs import Pose2D
+from mkflight.replay.vloop import MAX_T_NS
 from mkflight.safety.failsafe import StopRequest
 
 PORTS = ("mk", "laser")
@@ -116,6 +119,23 @@ class RecordedFlight:
         return (self.end_ns - self.start_ns) / 1e9
 
 
+def _check_time(t_ns: int, where: str) -> None:
+    """A recorded time the lock-step clock can run at, else ReplayError naming ``where``."""
+    if not 0 <= t_ns <= MAX_T_NS:
+        msg = (
+            f"{where}: time {t_ns} ns is outside the times a replay runs on "
+            f"(0 to {MAX_T_NS} ns): the file is damaged"
+        )
+        raise ReplayError(msg)
+
+
+def _check_recording(rec: RawRecording) -> None:
+    _check_time(rec.header.start_t_ns, f"{rec.path}: header")
+    for n, r in enumerate(rec.records, start=1):
+        if not 0 <= r.t_ns <= MAX_T_NS:
+            _check_time(r.t_ns, f"{rec.path}: record {n}")
+
+
 def _read_info(folder: Path) -> tuple[dict[str, Any], str, bool]:
     path = folder / "flight.json"
     if not path.exists():
@@ -151,8 +171,9 @@ def _events(folder: Path, warnings: list[str]) -> _EventInputs:
         warnings.append(f"{path}: last line cut short: dropped")
     scans = out.scans
     step_ns: list[int] = []  # the k-th step event is step k
-    for ev in data.events:
+    for n, ev in enumerate(data.events, start=1):
         f = ev.fields
+        _check_time(ev.t_ns, f"{path}: event {n} ({ev.event!r})")
         if ev.event == "step":
             step_ns.append(ev.t_ns)
             continue
@@ -160,6 +181,8 @@ def _events(folder: Path, warnings: list[str]) -> _EventInputs:
             out.ready_ns = ev.t_ns  # flights before the 'ready' event: the pre-flight's end
         elif ev.event == "scan" and "x_m" in f and isinstance(f.get("seq"), int):
             step, got = f.get("step"), f.get("got_ns")
+            if isinstance(got, int) and not isinstance(got, bool):
+                _check_time(got, f"{path}: event {n} ({ev.event!r}) got_ns")
             height = f.get("height_m")
             scans[f["seq"]] = RecordedScan(
                 t_ns=ev.t_ns,
@@ -232,6 +255,7 @@ def read_recorded_flight(folder: str | Path) -> RecordedFlight:
             msg = f"{path}: missing (a flight recorded by mkflight has mk.raw and laser.raw)"
             raise ReplayError(msg)
         rec = read_raw(path)
+        _check_recording(rec)
         if not any(r.kind == "r" for r in rec.records):
             msg = f"{path}: no bytes read from the port are recorded ({rec.size_bytes} bytes)"
             raise ReplayError(msg)

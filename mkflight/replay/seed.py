@@ -214,17 +214,13 @@ def compare_columns(
         both = np.isfinite(a) & np.isfinite(b)
         a, b = a[both], b[both]
         n = int(a.shape[0])
-        d = a - b
-        corr = math.nan
-        if n > 2 and np.std(a) > 0 and np.std(b) > 0:
-            corr = float(np.corrcoef(a, b)[0, 1])
+        with np.errstate(all="ignore"):  # a seed value of 1e300 overflows to inf: shown so
+            d = a - b
+            corr = math.nan
+            if n > 2 and np.std(a) > 0 and np.std(b) > 0:
+                corr = float(np.corrcoef(a, b)[0, 1])
+            rms = float(np.sqrt(np.mean(d * d))) if n else math.nan
         out.append(
-            ColumnComparison(
-                name,
-                n,
-                float(np.sqrt(np.mean(d * d))) if n else math.nan,
-                float(np.max(np.abs(d))) if n else math.nan,
-                corr,
-            )
+            ColumnComparison(name, n, rms, float(np.max(np.abs(d))) if n else math.nan, corr)
         )
     return out

@@ -38,6 +38,11 @@ from mkflight.replay.vloop import VirtualClock
 from mkflight.safety.failsafe import StopRequest
 
 SEED_START_NS = 1_000 * 1_000_000_000  # a seed replay's lock-step clock starts here (any)
+#: The tables start at take-off; a daemon still on the ground this long after the start
+#: never takes off (e.g. TABLE III's first pose is NaN or far outside the room: no valid
+#: fix), and the replay, which would otherwise run on forever, ends (one normally takes
+#: off about 2.5 s in).
+TAKEOFF_TIMEOUT_NS = 30 * 1_000_000_000
 
 
 def is_seed_folder(folder: Path) -> bool:
@@ -147,12 +152,25 @@ def replay_seed(
         if seed_clock.start_ns is None and out_.phase is Phase.TAKEOFF:
             seed_clock.start_ns = clock.now_ns()
             first_step.append(app.core.counters.imu_steps + 1)
+        elif (
+            seed_clock.start_ns is None
+            and app.stop_request is None
+            and clock.now_ns() > SEED_START_NS + TAKEOFF_TIMEOUT_NS
+        ):
+            app.request_stop(
+                StopRequest.DURATION, f"no take-off in {TAKEOFF_TIMEOUT_NS // 1_000_000_000} s"
+            )
 
     app.on_step = on_step
     cpu0, wall0 = time.process_time(), time.perf_counter()
     report = run_lockstep(app, feeder, clock, link_dir)
     wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
-    if fc.rows_sent < len(imu_seed):
+    if seed_clock.start_ns is None:
+        warnings.append(
+            f"the replayed daemon did not take off within {TAKEOFF_TIMEOUT_NS / 1e9:.0f} s: "
+            f"no TABLE IV row was played (is {folder / 'laser_100ms.log'}'s first pose valid?)"
+        )
+    elif fc.rows_sent < len(imu_seed):
         warnings.append(
             f"the replayed flight ended after {fc.rows_sent} of {len(imu_seed)} TABLE IV rows"
         )

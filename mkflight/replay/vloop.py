@@ -30,6 +30,11 @@ T = TypeVar("T")
 
 #: Real seconds per poll while a thread works (its result wakes the loop sooner).
 THREAD_POLL_S = 0.05
+#: The latest time the loop runs at (2**26 s, about 777 days of the recording host's
+#: uptime). Its time is float seconds: up to 2**27 s they still resolve the 10 ns a timer
+#: is due within; beyond, a due timer can stay pending forever while the loop spins. The
+#: margin leaves room for the daemon's timers after the last recorded time.
+MAX_T_NS = 2**26 * NS_PER_S
 
 
 class VirtualClock:
