@@ -11,10 +11,13 @@ completed (``protocols/scip2.md`` §2.2, §6 items 1-3):
   reply after garbage lines is still found;
 - every sum is checked: status, timestamp, each info line (with or without the ``;``)
   and each data block. A reply with any bad sum is dropped whole and counted (SC-21);
+  a character outside ``'0'..'o'`` under a good sum makes the reply malformed;
 - a scan's blocks are joined before the values are split (SC-12), and the number of
   values is checked against the echo's start, end and cluster, so a lost block is caught.
 
-Nothing fed to it raises: bad input only moves the counters in :attr:`ReplyParser.stats`.
+Nothing fed to it raises: bad input only moves the counters in :attr:`ReplyParser.stats`,
+and every byte is accounted for: ``bytes_in`` = the bytes of the good replies returned (LF
+LF included) + ``discarded_bytes`` + :attr:`ReplyParser.buffered`.
 """
 
 from __future__ import annotations
@@ -146,6 +149,7 @@ class ParserStats:
     malformed: int = 0
     garbage_lines: int = 0
     overflows: int = 0
+    discarded_bytes: int = 0  # every byte fed that did not end up in a good reply
 
     @property
     def dropped(self) -> int:
@@ -170,6 +174,7 @@ class ReplyParser:
     def reset(self) -> None:
         """Forget a partial reply (after the port was re-opened), counting its lines."""
         self.stats.garbage_lines += len(self._lines) + bool(self._partial)
+        self.stats.discarded_bytes += self.buffered
         self._partial.clear()
         self._lines.clear()
         self._skipping = False
@@ -184,10 +189,13 @@ class ReplyParser:
         while True:
             nl = data.find(b"\n", pos)
             if nl < 0:
-                if not self._skipping:
+                if self._skipping:
+                    stats.discarded_bytes += len(data) - pos
+                else:
                     self._partial += data[pos:]
                     if len(self._partial) > MAX_LINE_BYTES:
                         stats.overflows += 1
+                        stats.discarded_bytes += len(self._partial)
                         self._partial.clear()
                         self._skipping = True
                 return out
@@ -195,6 +203,7 @@ class ReplyParser:
             pos = nl + 1
             if self._skipping:
                 self._skipping = False  # the end of an over-long line
+                stats.discarded_bytes += len(chunk) + 1
                 continue
             if self._partial:
                 self._partial += chunk
@@ -204,9 +213,11 @@ class ReplyParser:
                 line = chunk
             if len(line) > MAX_LINE_BYTES:
                 stats.overflows += 1
+                stats.discarded_bytes += len(line) + 1
             elif line:
                 self._lines.append(line)
                 if len(self._lines) > MAX_REPLY_LINES:
+                    stats.discarded_bytes += len(self._lines[0]) + 1
                     del self._lines[0]
                     stats.garbage_lines += 1
             elif self._lines:
@@ -214,6 +225,8 @@ class ReplyParser:
                 reply = self._finish(lines)
                 if reply is not None:
                     out.append(reply)
+            else:
+                stats.discarded_bytes += 1  # an LF between replies
 
     def _finish(self, lines: list[bytes]) -> Reply | None:
         """Find the reply in the lines of one ``LF LF``-terminated block, or count them."""
@@ -225,10 +238,12 @@ class ReplyParser:
             result = _parse(lines, i)
             if isinstance(result, Reply):
                 stats.garbage_lines += i
+                stats.discarded_bytes += sum(len(line) + 1 for line in lines[:i])
                 stats.replies += 1
                 return result
             if result is not None and failure is None:
                 failure = (i, result)
+        stats.discarded_bytes += sum(len(line) + 1 for line in lines) + 1  # + the empty line
         if failure is None:
             stats.garbage_lines += len(lines)
             return None
@@ -273,7 +288,10 @@ def _parse(lines: list[bytes], i: int) -> Reply | str | None:
         if len(line) < 2 or sum_char(line[:-1]) != line[-1]:
             return _SUM
     if command == "TM" and len(body) == 1 and len(body[0]) == 5:
-        return TimeReply(echo, status, decode_value(body[0][:4]))
+        try:
+            return TimeReply(echo, status, decode_value(body[0][:4]))
+        except ValueError:  # a good sum over characters outside '0'..'o'
+            return _MALFORMED
     return Reply(echo, status)
 
 
