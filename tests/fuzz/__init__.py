@@ -1,22 +1,23 @@
 """Fuzz tests (issue 10): both parsers, the MK link and the URG driver.
 
 The stream builders, whose pieces say exactly what a parser must make of them, live in
-``tools/fuzz.py`` (the long run) and are shared: this package registers that file as the
-module ``fuzz`` before its tests import it (mypy finds it as ``tools/`` is in its files).
+``tools/fuzz_*.py`` beside the long run ``tools/fuzz.py``, which re-exports the ones these
+tests use. ``tools/`` is not a package: this package imports that file as the module ``fuzz``
+(its siblings, which it imports by bare name, with it) with ``tools/`` on ``sys.path`` for that
+import only (mypy finds them all as ``tools/`` is in its files).
 """
 
 from __future__ import annotations
 
-import importlib.util
+import importlib
 import sys
 from pathlib import Path
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "fuzz.py"
+TOOLS = str(Path(__file__).resolve().parents[2] / "tools")
 
 if "fuzz" not in sys.modules:
-    _spec = importlib.util.spec_from_file_location("fuzz", TOOL)
-    assert _spec is not None
-    assert _spec.loader is not None
-    _module = importlib.util.module_from_spec(_spec)
-    sys.modules["fuzz"] = _module  # before exec: its dataclasses look their module up
-    _spec.loader.exec_module(_module)
+    sys.path.insert(0, TOOLS)
+    try:
+        importlib.import_module("fuzz")
+    finally:
+        sys.path.remove(TOOLS)
