@@ -249,8 +249,8 @@ class Recorder:
         s["arrival_ns"][i] = self._sample_t_ns
         delayed = stats.delayed_commands != self._delayed
         self._delayed = stats.delayed_commands
-        s["latency_ns"][i] = math.nan if delayed else stats.latency_ns[-1]
-        s["busy_ns"][i] = stats.busy_ns[-1]
+        s["latency_ns"][i] = math.nan if delayed else stats.latency_ns.last()
+        s["busy_ns"][i] = stats.busy_ns.last()
         s["restart"][i] = stats.restarted_periods != self._restarts
         self._restarts = stats.restarted_periods
         s["cpu_s"][i] = time.process_time()

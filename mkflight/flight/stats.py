@@ -22,8 +22,10 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections import deque
 from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
 
 OVERRUN_S = 0.010
 """A step that takes longer than this (arrival to done) is an overrun: 1/5 of the period."""
@@ -31,6 +33,43 @@ MISSED_FACTOR = 1.5
 """An interval longer than this many median periods means a DebugOut (a step) was missed."""
 KEEP = 20_000
 """Samples kept per figure: ~17 minutes of 53 ms steps (a longer flight keeps the newest)."""
+
+
+class Ring:
+    """The newest :data:`KEEP` integer samples in a buffer allocated once.
+
+    A ``deque`` of Python ints allocates an object per step and grows for the first
+    17 minutes of a flight; this does neither, so a soak's memory is flat from the start.
+    """
+
+    __slots__ = ("_buf", "_n")
+
+    def __init__(self, size: int = KEEP) -> None:
+        self._buf: npt.NDArray[np.int64] = np.zeros(size, np.int64)
+        self._n = 0  # samples ever appended
+
+    def append(self, value: int) -> None:
+        """Keep ``value``, dropping the oldest when full."""
+        self._buf[self._n % len(self._buf)] = value
+        self._n += 1
+
+    def __len__(self) -> int:
+        return min(self._n, len(self._buf))
+
+    def last(self) -> int:
+        """The newest sample (IndexError when empty)."""
+        if not self._n:
+            msg = "empty ring"
+            raise IndexError(msg)
+        return int(self._buf[(self._n - 1) % len(self._buf)])
+
+    def values(self) -> npt.NDArray[np.int64]:
+        """The kept samples, oldest first (a copy)."""
+        size = len(self._buf)
+        if self._n <= size:
+            return self._buf[: self._n].copy()
+        head = self._n % size
+        return np.concatenate((self._buf[head:], self._buf[:head]))
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -46,9 +85,9 @@ def percentile(values: list[float], q: float) -> float:
 class StepStats:
     """Per-step timing of one flight (see the module docstring)."""
 
-    latency_ns: deque[int] = field(default_factory=lambda: deque(maxlen=KEEP))
-    period_ns: deque[int] = field(default_factory=lambda: deque(maxlen=KEEP))
-    busy_ns: deque[int] = field(default_factory=lambda: deque(maxlen=KEEP))
+    latency_ns: Ring = field(default_factory=Ring)
+    period_ns: Ring = field(default_factory=Ring)
+    busy_ns: Ring = field(default_factory=Ring)
     steps: int = 0
     overruns: int = 0
     delayed_commands: int = 0
@@ -80,13 +119,13 @@ class StepStats:
 
     def last_latency_ms(self) -> float:
         """The newest step's latency (ms), NaN before the first."""
-        return self.latency_ns[-1] / 1e6 if self.latency_ns else math.nan
+        return self.latency_ns.last() / 1e6 if len(self.latency_ns) else math.nan
 
     def summary(self) -> dict[str, float | int]:
         """Medians and percentiles in ms, counts; for ``flight.json`` and the benchmarks."""
-        lat = [v / 1e6 for v in self.latency_ns]
-        per = [v / 1e6 for v in self.period_ns]
-        busy = [v / 1e6 for v in self.busy_ns]
+        lat: list[float] = (self.latency_ns.values() / 1e6).tolist()
+        per: list[float] = (self.period_ns.values() / 1e6).tolist()
+        busy: list[float] = (self.busy_ns.values() / 1e6).tolist()
         median_period = percentile(per, 50)
         jitter = [abs(p - median_period) for p in per]
         missed = sum(1 for p in per if p > MISSED_FACTOR * median_period)

@@ -94,3 +94,34 @@ def test_gc_watch_records_collections_and_pauses() -> None:
     assert d["max_pause_ms"] > 0
     gc.collect()  # after uninstall: not counted
     assert watch.summary()["collections"] == 2
+
+
+def test_ring_keeps_the_newest_in_order_and_does_not_grow() -> None:
+    from mkflight.flight.stats import Ring
+
+    r = Ring(4)
+    assert len(r) == 0
+    with pytest.raises(IndexError):
+        r.last()
+    for v in range(3):
+        r.append(v)
+    assert r.values().tolist() == [0, 1, 2]
+    for v in range(3, 10):
+        r.append(v)
+    assert len(r) == 4
+    assert r.last() == 9
+    assert r.values().tolist() == [6, 7, 8, 9]
+
+
+def test_a_long_flight_keeps_the_newest_steps() -> None:
+    from mkflight.flight.stats import KEEP
+
+    s = StepStats()
+    for k in range(KEEP + 500):
+        arrival = k * 53 * MS
+        lat = 7 * MS if k < 500 else MS  # only the oldest 500 were slow: dropped
+        s.on_step(arrival, arrival + lat, arrival + lat)
+    d = s.summary()
+    assert d["steps"] == KEEP + 500
+    assert d["latency_max_ms"] == pytest.approx(1.0)
+    assert len(s.latency_ns) == KEEP
