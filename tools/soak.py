@@ -102,6 +102,7 @@ from soak_report import (  # tools/soak_report.py, beside this file
 from mkflight.config import Config, load_config
 from mkflight.control.phases import Phase
 from mkflight.errors import ConfigError
+from mkflight.sim.pty_server import LATE_NOTE_NS
 
 if TYPE_CHECKING:
     from mkflight.flight.app import FlightApp
@@ -158,8 +159,12 @@ async def _serve_sim(cfg: Config, seed: int, truth: str, conn: Connection) -> No
     finally:
         with contextlib.suppress(Exception):
             await sim.stop()
+    late = {
+        name: {"count": emu.late_count, "wakes": emu.late_wakes}
+        for name, emu in (("fc", sim.fc), ("urg", sim.urg))
+    }
     with contextlib.suppress(EOFError, OSError):
-        conn.send((rows, crash))
+        conn.send((rows, crash, late))
 
 
 # ----- per-step recording in the daemon's process ----------------------------------------
@@ -367,6 +372,7 @@ async def soak(cfg: Config, plan: Plan, folder: Path) -> dict[str, Any]:
     theirs.close()
     rows: list[tuple[float, ...]] = []
     sim_crash = ""
+    sim_late: dict[str, dict[str, Any]] = {}
     try:
         mk, laser, sim_pid = await asyncio.to_thread(_recv, ours, SIM_START_TIMEOUT_S)
         rec = Recorder(plan.duration_s, plan.sample_s, sim_pid)
@@ -395,7 +401,7 @@ async def soak(cfg: Config, plan: Plan, folder: Path) -> dict[str, Any]:
         with contextlib.suppress(OSError, ValueError):
             ours.send("stop")
         try:
-            rows, sim_crash = await asyncio.to_thread(_recv, ours, 10.0)
+            rows, sim_crash, sim_late = await asyncio.to_thread(_recv, ours, 10.0)
         except (TimeoutError, EOFError, OSError) as err:
             sim_crash = sim_crash or f"no samples from the simulator: {err!r}"
         await asyncio.to_thread(child.join, 10.0)
@@ -404,7 +410,24 @@ async def soak(cfg: Config, plan: Plan, folder: Path) -> dict[str, Any]:
     if rec.n < 2:
         msg = f"the flight made {rec.n} steps: {report.reason}"
         raise RuntimeError(msg)
-    out = figures(rec, rows, start_ns=app.start_ns, window_s=plan.window_s, tool_file=__file__)
+    fc_late = sim_late.get("fc", {}).get("wakes", [])
+    out = figures(
+        rec,
+        rows,
+        start_ns=app.start_ns,
+        window_s=plan.window_s,
+        tool_file=__file__,
+        sim_late_ns=[t for t, _ in fc_late],
+    )
+    out["simulator_late"] = {
+        name: {
+            "wakeups_late_over_ms": LATE_NOTE_NS / 1e6,
+            "count": v["count"],
+            "max_ms": round(max((ms for _, ms in v["wakes"]), default=0.0), 2),
+            "at_s": [round((t - app.start_ns) / 1e9, 3) for t, _ in v["wakes"][:20]],
+        }
+        for name, v in sim_late.items()
+    }
     s = report.summary
     first, last = rec.samples[0], rec.samples[-1]
     out["flight"] = {

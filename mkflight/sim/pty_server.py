@@ -34,6 +34,11 @@ from typing import Generic, Protocol, Self, TypeVar
 from mkflight.errors import LinkError
 from mkflight.io.pty import PtyDevice
 
+LATE_NOTE_NS = 20_000_000
+"""A wake-up this much after the model's event is noted in :attr:`PtyEmulator.late_wakes`."""
+LATE_KEEP = 1000
+"""At most this many late wake-ups are kept (the count goes on)."""
+
 
 class EmulatedDevice(Protocol):
     """What :class:`PtyEmulator` needs of a model: bytes in, bytes out, next wake-up."""
@@ -75,6 +80,8 @@ class PtyEmulator(abc.ABC, Generic[M]):
         self._plug_generation = 0
         self.lost_chunks = 0  # written while unplugged: the device sends into the void
         self.chunks_written = 0
+        self.late_count = 0  # wake-ups >= LATE_NOTE_NS after the model's event was due
+        self.late_wakes: list[tuple[int, float]] = []  # (monotonic ns, ms late), the first
         self.error: BaseException | None = None  # the first crash of a task
 
     @abc.abstractmethod
@@ -205,6 +212,20 @@ class PtyEmulator(abc.ABC, Generic[M]):
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(delay_s):
                         await self._wake.wait()
+            if not self._wake.is_set():
+                self._note_late(next_ns, time.monotonic_ns())
+
+    def _note_late(self, due_ns: int, now_ns: int) -> None:
+        """Note a wake-up late for its event: the device's bytes go out late (a busy host).
+
+        What a client sees as a late frame is then the emulator's, not the client's: the
+        soak (``tools/soak.py``) tells the two apart with these.
+        """
+        if now_ns - due_ns < LATE_NOTE_NS:
+            return
+        self.late_count += 1
+        if len(self.late_wakes) < LATE_KEEP:
+            self.late_wakes.append((now_ns, (now_ns - due_ns) / 1e6))
 
     def _poke(self) -> None:
         """Make the sender re-plan now (the model's next event may have moved)."""

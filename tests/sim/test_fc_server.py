@@ -210,3 +210,27 @@ async def test_a_task_crash_is_raised_when_the_context_exits(tmp_path: Path) -> 
     with pytest.raises(RuntimeError, match="crashed") as info:
         await serve(catch=False)  # the body raised: its exception wins, with a note
     assert info.value.__notes__ == ["fc: emulator task crashed: ValueError('the simulation broke')"]
+
+
+async def test_late_wakeups_are_noted_so_a_late_frame_is_known_as_the_emulators(
+    emu: FcEmulator, client: SerialStream
+) -> None:
+    """A busy host wakes the sender late: noted (time, ms late), so the soak can attribute it."""
+    from mkflight.sim.pty_server import LATE_KEEP, LATE_NOTE_NS
+
+    assert emu.late_count == 0
+    emu._note_late(1_000_000_000, 1_000_000_000 + LATE_NOTE_NS - 1)  # on time enough
+    assert emu.late_count == 0
+    client.write(debug_request(5))  # a DebugOut at once, then every 50 ms
+    parser = FrameParser()
+    await read_frames(client, parser, 1, "D")
+    time.sleep(0.12)  # noqa: ASYNC251 -- block the loop on purpose: the next send is late
+    await read_frames(client, parser, 1, "D")
+    assert emu.late_count >= 1
+    at_ns, late_ms = emu.late_wakes[0]
+    assert late_ms >= LATE_NOTE_NS / 1e6
+    assert at_ns <= time.monotonic_ns()
+    for _ in range(LATE_KEEP + 5):
+        emu._note_late(0, LATE_NOTE_NS)
+    assert len(emu.late_wakes) == LATE_KEEP
+    assert emu.late_count >= LATE_KEEP + 6

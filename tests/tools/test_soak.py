@@ -49,7 +49,7 @@ def test_the_flight_holds_for_the_duration_and_lands_with_exit_0(
 
 
 def test_step_counts_are_consistent(soak: tuple[int, str, dict[str, Any]]) -> None:
-    code, _, r = soak
+    code, _out, r = soak
     st = r["steps"]
     # every DebugOut the link received was stepped or counted as dropped; one command a step
     assert st["debugouts_received"] == st["steps"] + st["samples_dropped"]
@@ -63,6 +63,11 @@ def test_step_counts_are_consistent(soak: tuple[int, str, dict[str, Any]]) -> No
     assert (code == 0) == r["verdict"]["ok"]
     assert r["verdict"]["missed_total"] == sum(max(0, v) for v in r["verdict"]["missed"].values())
     assert sum(c["gaps"] for c in st["by_cause"].values()) == st["gaps"]
+    # the emulators' late wake-ups come back from the simulator's process, both of them
+    late = r["simulator_late"]
+    assert set(late) == {"fc", "urg"}
+    assert all(v["count"] >= len(v["at_s"]) for v in late.values())
+    assert "simulator woke late to send: FC " in _out
 
 
 def test_windows_cover_every_step_with_their_figures(soak: tuple[int, str, dict[str, Any]]) -> None:
