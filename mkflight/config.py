@@ -41,7 +41,11 @@ class MkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
     port: str = "/dev/ttyUSB0"
     baudrate: Annotated[int, Meta(ge=1200, le=4_000_000)] = 57600
     debug_interval_10ms: Annotated[int, Meta(ge=1, le=255)] = 5
-    resubscribe_s: Annotated[float, Meta(gt=0, le=2.0)] = 2.0
+    resubscribe_s: Annotated[float, Meta(gt=0, le=2.0)] = 1.3
+    """Renew 'd' this often: the FC expires it ~4.1 s after the last renewal it *received*,
+    and a renewal can be lost (a frame whose '#' arrives while the FC still handles the
+    previous one is dropped, mk-serial.md §3). At 2 s two lost renewals in a row stop the
+    DebugOuts for a stale time (the 30-minute soak saw it once); at 1.3 s it takes three."""
     version_retry_s: Annotated[float, Meta(gt=0, le=5)] = 0.5
     answer_timeout_s: Annotated[float, Meta(gt=0, le=30)] = 2.0
     min_frame_gap_s: Annotated[float, Meta(ge=0.003, le=0.05)] = 0.003

@@ -160,7 +160,11 @@ async def _serve_sim(cfg: Config, seed: int, truth: str, conn: Connection) -> No
         with contextlib.suppress(Exception):
             await sim.stop()
     late = {
-        name: {"count": emu.late_count, "wakes": emu.late_wakes}
+        name: {
+            "count": emu.late_count,
+            "wakes": emu.late_wakes,
+            "rx_lost_frames": getattr(emu.model, "rx_lost_frames", None),
+        }
         for name, emu in (("fc", sim.fc), ("urg", sim.urg))
     }
     with contextlib.suppress(EOFError, OSError):
@@ -425,6 +429,10 @@ async def soak(cfg: Config, plan: Plan, folder: Path) -> dict[str, Any]:
             "count": v["count"],
             "max_ms": round(max((ms for _, ms in v["wakes"]), default=0.0), 2),
             "at_s": [round((t - app.start_ns) / 1e9, 3) for t, _ in v["wakes"][:20]],
+            # frames the emulated device dropped because they arrived too soon after the
+            # previous one (mk-serial.md §3): host bytes are stamped when the simulator
+            # reads them, so a late read packs frames the daemon had spaced
+            "rx_lost_frames": v.get("rx_lost_frames"),
         }
         for name, v in sim_late.items()
     }

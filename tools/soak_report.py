@@ -421,7 +421,12 @@ def format_table(r: dict[str, Any]) -> str:
         "simulator woke late to send: "
         + (
             ", ".join(
-                f"{name.upper()} {v['count']} (max {v['max_ms']:g} ms)"
+                f"{name.upper()} {v['count']} (max {v['max_ms']:g} ms"
+                + (
+                    f", frames lost arriving too close: {v['rx_lost_frames']})"
+                    if v.get("rx_lost_frames") is not None
+                    else ")"
+                )
                 for name, v in r.get("simulator_late", {}).items()
             )
             or "not known"

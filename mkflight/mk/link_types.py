@@ -23,7 +23,7 @@ class LinkSettings:
 
     baudrate: int = 57600
     debug_interval_10ms: int = 5
-    resubscribe_s: float = 2.0
+    resubscribe_s: float = 1.3
     stale_s: float = 0.2
     release_after_stale_s: float = 1.0
     version_retry_s: float = 0.5
