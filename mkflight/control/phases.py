@@ -24,7 +24,8 @@ goes to RELEASED at once. A ``land`` request lands, a ``release`` request releas
 
 Land detector: the estimated height below ``land_detect_height_m``, or the gas at or below
 ``land_gas_counts`` with ``|vz_up| <= land_still_mps`` (gas at minimum and no descent),
-continuously for ``land_detect_s``.
+continuously for ``land_detect_s``; only on a valid hat height (without one,
+:mod:`mkflight.control.descent` finds the floor and the flight step says LANDED).
 """
 
 from __future__ import annotations
@@ -154,6 +155,8 @@ def _step_toward(value: float, target: float, max_step: float) -> float:
 
 
 def _landed_now(p: PhaseParams, est: Estimate, last_gas_counts: int | None) -> bool:
+    if not est.height_valid:  # a dead-reckoned height is no floor (the descent finds it)
+        return False
     low = math.isfinite(est.height_m) and est.height_m < p.land_detect_height_m
     idle = (
         last_gas_counts is not None

@@ -113,6 +113,9 @@ class Estimator:
         self._pending_height: tuple[int, float, float | None, int] | None = None
         self._laser_step: LaserStep | None = None
         self._counts: dict[str, int] = dict.fromkeys(EstimatorCounters.__slots__, 0)
+        self._bias_l: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._k_xy = cfg.filter_gain_per_s
+        self._k_z = cfg.filter_gain_z_per_s
 
     # ----------------------------------------------------------------- public API
 
@@ -120,6 +123,37 @@ class Estimator:
     def counters(self) -> EstimatorCounters:
         """How many inputs were rejected, out of order, or had no history to go back to."""
         return EstimatorCounters(**self._counts)
+
+    @property
+    def last_acc_level(self) -> tuple[float, float, float] | None:
+        """The newest sample's level-frame acceleration (FRD, no bias removed), or None."""
+        return self._knots[-1].acc_l if self._knots else None
+
+    @property
+    def acc_bias_level(self) -> tuple[float, float, float]:
+        """The bias subtracted from every level-frame acceleration (FRD, m/s^2)."""
+        return self._bias_l
+
+    @property
+    def filter_gains(self) -> tuple[float, float]:
+        """The complementary filter's gains ``(k_xy, k_z)`` in use, 1/s."""
+        return self._k_xy, self._k_z
+
+    def set_acc_bias(self, bias_level_mps2: tuple[float, float, float]) -> None:
+        """Subtract this level-frame bias (FRD) from every acceleration from now on.
+
+        The history is re-propagated with it at the next pose or height (the knots keep
+        the raw accelerations). Non-finite components are taken as 0.
+        """
+        bx, by, bz = (v if math.isfinite(v) else 0.0 for v in bias_level_mps2)
+        self._bias_l = (bx, by, bz)
+
+    def set_filter_gains(self, k_xy_per_s: float, k_z_per_s: float) -> None:
+        """Set the complementary filter's gains k (eq 15-17), 1/s; non-finite or < 0: kept."""
+        if math.isfinite(k_xy_per_s) and k_xy_per_s >= 0.0:
+            self._k_xy = k_xy_per_s
+        if math.isfinite(k_z_per_s) and k_z_per_s >= 0.0:
+            self._k_z = k_z_per_s
 
     @property
     def laser_step(self) -> LaserStep | None:
@@ -235,9 +269,11 @@ class Estimator:
         return (t1_ns - t0_ns) / NS_PER_S
 
     def _acc_w(self, k: _Knot) -> tuple[float, float, float]:
-        """The knot's held acceleration in W: x, y (needs the yaw offset) and z up."""
-        ax, ay = body_to_world(k.acc_l[0], k.acc_l[1], k.mk_yaw_rad + (self._yaw_offset_rad or 0.0))
-        return ax, ay, -k.acc_l[2]
+        """The knot's held acceleration in W, bias removed: x, y (needs the yaw offset), z up."""
+        b = self._bias_l
+        yaw = k.mk_yaw_rad + (self._yaw_offset_rad or 0.0)
+        ax, ay = body_to_world(k.acc_l[0] - b[0], k.acc_l[1] - b[1], yaw)
+        return ax, ay, b[2] - k.acc_l[2]
 
     def _propagate(self, k: _Knot, nxt: _Knot) -> _Knot:
         """``nxt`` with its state stepped from ``k`` (eq 15-17; trapezoidal position)."""
@@ -247,7 +283,7 @@ class Estimator:
         x, y, vx, vy, meas_w = k.x_m, k.y_m, k.vx_mps, k.vy_mps, k.meas_w
         if self._yaw_offset_rad is not None:
             mx, my = (None, None) if meas_w is None else meas_w
-            kxy = self._cfg.filter_gain_per_s
+            kxy = self._k_xy
             vx1 = complementary_step(vx, mx, ax, dt, kxy)
             vy1 = complementary_step(vy, my, ay, dt, kxy)
             x, y, vx, vy = x + 0.5 * (vx + vx1) * dt, y + 0.5 * (vy + vy1) * dt, vx1, vy1
@@ -255,7 +291,7 @@ class Estimator:
                 meas_w = (meas_w[0] + ax * dt, meas_w[1] + ay * dt)
         h, vz, meas_z = k.h_m, k.vz_up_mps, k.meas_z
         if self._height_started:
-            vz1 = complementary_step(vz, meas_z, az, dt, self._cfg.filter_gain_z_per_s)
+            vz1 = complementary_step(vz, meas_z, az, dt, self._k_z)
             h, vz = h + 0.5 * (vz + vz1) * dt, vz1
             if meas_z is not None and carry:
                 meas_z += az * dt

@@ -18,9 +18,14 @@ Fail-safe rules enforced here (SPEC §5, and a review of the first simulated fli
   estimator rejected the sample (its estimate is stale), or when the controller cannot
   produce a command: the last safe command is sent, and after
   ``safety.nonfinite_land_steps`` such steps the failsafe lands;
-* a landing that cannot be flown on the estimate (the controller still fails, or neither
-  pose nor height is valid) is a blind, level descent at 85 % of the hover gas for at most
-  5 s, then control goes back to the pilot (Config = 0);
+* the airframe is learned while it holds (:mod:`mkflight.flight.airframe`): the
+  accelerometer biases go into the estimator, the hover gas and the vibration into the
+  vertical channel without the hat, the descent and ``flight.json``;
+* a landing that cannot be flown on the hat height (the laser is gone, or the FC's samples
+  are unusable so the estimate stops) is a closed-loop, level descent on what is left
+  (:mod:`mkflight.control.descent`: the inertial vertical velocity, or the hat height
+  alone) that finds the floor and then cuts the gas; only if it finds no floor in time
+  does control go to the pilot in the air, which ends the flight with exit 1;
 * without a valid pose the controllers fly LEVEL (no position loop on dead reckoning);
   without a valid hat height the laser counts as stale (the height loop would fly blind);
 * take-off needs a valid pose and height; the laser's age counts from when the pose
@@ -46,6 +51,7 @@ from mkflight.control.phases import (
     phase_step,
 )
 from mkflight.estimation.estimator import Estimator
+from mkflight.flight.airframe import FlightAirframe
 from mkflight.logs.table3 import Table3Row
 from mkflight.logs.table4 import Table4Row
 from mkflight.msgs import Command, Estimate, ImuSample, Pose2D
@@ -57,10 +63,6 @@ from mkflight.safety.failsafe import (
     TransitionEvent,
 )
 
-#: Blind descent (no trustworthy estimate or controller while landing): level, no yaw,
-#: this fraction of the hover feed-forward gas, for at most BLIND_DESCENT_S, then the pilot.
-BLIND_DESCENT_GAS_FRACTION = 0.85
-BLIND_DESCENT_S = 5.0
 TOUCHDOWN_HEIGHT_M = 0.15
 """Below this height in LAND a degenerate scan no longer raises the failsafe."""
 MAX_HOLD_OFFSET_M = 1.0
@@ -119,7 +121,11 @@ class FlightCore:
         self._now_ns = 0
         self._degenerate = False
         self._invalid_run = 0
-        self._blind_since_ns: int | None = None
+        self.airframe = FlightAirframe(cfg, self.estimator)
+        """What the flight learns of its airframe; the descent without the hat."""
+        self.handed_in_air = False
+        """Control went to the pilot in the air (no floor found): the flight ends with exit 1."""
+        self._pending_phase_events: list[PhaseEvent] = []
         self._index3 = 0
         self._index4 = 0
         self._first_ns: int | None = None  # the first step's time: failsafe times count from it
@@ -138,15 +144,42 @@ class FlightCore:
 
         self._hold_offset_m = (safe(dx_m), safe(dy_m))
 
-    def _blind_descent(self, t_ns: int, take_control: bool) -> Command:
-        """Level, no yaw, a little under hover gas; the pilot's after BLIND_DESCENT_S."""
-        self.counters.invalid_steps += 1
-        if self._blind_since_ns is None:
-            self._blind_since_ns = t_ns
-            self.counters.failsafe_events.append(f"{self._since_s(t_ns)} blind descent")
-        if (t_ns - self._blind_since_ns) / NS_PER_S >= BLIND_DESCENT_S:
+    def learned(self) -> dict[str, object]:
+        """What the flight learned of its airframe and how it used it (``flight.json``)."""
+        out = self.airframe.learned()
+        out["handed_in_air"] = self.handed_in_air
+        return out
+
+    def _descend(
+        self, t_ns: int, imu: ImuSample, est: Estimate, *, inertial: bool, take_control: bool
+    ) -> Command:
+        """A landing without a usable hat height or estimate (:mod:`mkflight.control.descent`).
+
+        ``inertial``: the FC's samples are good (the estimate's height and vertical
+        velocity are the model-aided channel's); otherwise the hat height alone, if
+        fresh, else nothing.
+        """
+        if self.airframe.descent is None:
+            self.counters.failsafe_events.append(f"{self._since_s(t_ns)} descent without height")
+        out = self.airframe.descend(
+            t_ns,
+            imu,
+            est,
+            inertial=inertial,
+            integral_gas=self.controller.state.altitude.climb.integral,
+            since=self._since_s(t_ns),
+        )
+        if out.give_up:
+            self.handed_in_air = True
+            self.counters.failsafe_events.append(f"{self._since_s(t_ns)} {out.note}")
             return Command(t_ns, 0, 0, 0, 0, take_control=False)  # the pilot's sticks rule
-        return Command(t_ns, 0, 0, 0, _blind_gas(self.cfg), take_control=take_control)
+        if out.on_floor and self.phase_state.phase is Phase.LAND:
+            event = PhaseEvent(t_ns, Phase.LAND, Phase.LANDED, out.note or "floor found")
+            self.phase_state = replace(
+                self.phase_state, phase=Phase.LANDED, phase_start_ns=t_ns, setpoint=None
+            )
+            self._pending_phase_events.append(event)
+        return Command(t_ns, 0, 0, 0, out.gas_counts, take_control=take_control)
 
     @property
     def phase(self) -> Phase:
@@ -183,6 +216,7 @@ class FlightCore:
             if used:
                 self._last_pose_arrival_ns = self._now_ns
         self.estimator.on_height(t_ns, height_m)
+        self.airframe.hat_height(self._now_ns, t_ns, height_m)
         ls = self.estimator.laser_step
         if ls is None or not used:
             return None  # no new pose: no new TABLE III row
@@ -226,6 +260,14 @@ class FlightCore:
         est = self.estimator.on_imu(imu)
         fresh = est.t_ns == t_ns  # the estimator took this sample (else: stale estimate)
         flying = self.phase_state.phase in (Phase.TAKEOFF, Phase.HOLD, Phase.LAND)
+        est = self.airframe.without_hat(
+            imu,
+            est,
+            fresh=fresh,
+            flying=flying,
+            gas_counts=self.last_command.gas_counts,
+            integral_gas=self.controller.state.altitude.climb.integral,
+        )
         if self._last_pose_arrival_ns is None or (flying and not est.height_valid):
             laser_age_s = math.inf  # no pose yet, or no hat height: the laser is stale
         else:
@@ -255,6 +297,15 @@ class FlightCore:
                 pilot_override=pilot_override,
             )
         )
+        if fresh and finite:
+            st = self.phase_state
+            self.airframe.observe(
+                imu,
+                est,
+                hold_s=(t_ns - st.phase_start_ns) / NS_PER_S if st.phase is Phase.HOLD else None,
+                quiet=fs.action <= FailsafeAction.WARN and self.last_command.take_control,
+                gas_counts=self.last_command.gas_counts,
+            )
         if not (est.pose_valid and est.height_valid):
             requests = PhaseRequests(
                 takeoff=False,  # never take off without a valid pose and height
@@ -293,23 +344,23 @@ class FlightCore:
                     mode=mode,
                     take_control=out_phase.take_control,
                 )
-            landing_blind = fs.action >= FailsafeAction.LAND and not (
-                est.pose_valid or est.height_valid
-            )
             ok = (
                 control is not None
                 and control.valid
                 and control.command is not None
                 and not fs.use_last_command
             )
-            if ok and not landing_blind and control is not None and control.command is not None:
+            landing = fs.action >= FailsafeAction.LAND and out_phase.phase is Phase.LAND
+            cannot_fly = not ok and self._invalid_run >= self.cfg.safety.nonfinite_land_steps
+            descending = self.airframe.descent is not None
+            if landing and (descending or not est.height_valid or cannot_fly):
+                inertial = fresh and _finite_imu(imu) and math.isfinite(est.vz_up_mps)
+                command = self._descend(
+                    t_ns, imu, est, inertial=inertial, take_control=out_phase.take_control
+                )
+            elif ok and control is not None and control.command is not None:
                 command = control.command
                 self._invalid_run = 0
-                self._blind_since_ns = None
-            elif fs.action >= FailsafeAction.LAND and (
-                landing_blind or self._invalid_run >= self.cfg.safety.nonfinite_land_steps
-            ):
-                command = self._blind_descent(t_ns, out_phase.take_control)
             else:
                 self.counters.invalid_steps += 1
                 self._invalid_run += 1
@@ -328,8 +379,12 @@ class FlightCore:
         if fs.action is FailsafeAction.RELEASE:
             command = Command(t_ns, 0, 0, 0, 0, take_control=False)
         phase, phase_events = out_phase.phase, tuple(out_phase.events)
+        if self._pending_phase_events:  # the descent found the floor: LANDED now
+            phase = self.phase_state.phase
+            phase_events = (*phase_events, *self._pending_phase_events)
+            self._pending_phase_events.clear()
         if not command.take_control and phase in (Phase.TAKEOFF, Phase.HOLD, Phase.LAND):
-            # Handed to the pilot in the air (the blind descent's end): that is final. A pose
+            # Handed to the pilot in the air (a descent that found no floor): final. A pose
             # or height coming back later must never take control again (sticky, SPEC §5).
             event = PhaseEvent(t_ns, phase, Phase.RELEASED, "handed to the pilot in the air")
             self.phase_state = replace(self.phase_state, phase=Phase.RELEASED, setpoint=None)
@@ -371,11 +426,6 @@ class FlightCore:
 
 def _cause(cause: object) -> str:
     return str(getattr(cause, "value", cause))
-
-
-def _blind_gas(cfg: Config) -> int:
-    gas = round(BLIND_DESCENT_GAS_FRACTION * cfg.control.hover_gas)
-    return max(0, min(cfg.control.gas_max, gas))
 
 
 def _dt_s(t_ns: int, last_ns: int | None) -> float:

@@ -34,6 +34,7 @@ def flight_summary(app: FlightApp, error: BaseException | None, released: bool) 
         "final_phase": app.core.phase.name,
         "released": released,
         "failsafes": list(counters.failsafe_events),
+        "learned": app.core.learned(),
         "timing": app.stats.summary(),
         "cpu_percent_of_one_core": round(100.0 * cpu_s / wall_s, 2) if wall_s > 0 else None,
         "cpu_percent_in_hold": app.monitor.cpu_percent(),

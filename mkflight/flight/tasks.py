@@ -60,6 +60,9 @@ async def mk_task(app: FlightApp) -> None:
             msg = f"FlightCtrl lost: {err}; it hands control to the pilot's sticks"
             raise FlightError(msg) from err
         if out.phase is Phase.RELEASED:
+            if app.core.handed_in_air:  # the last resort: say so, exit 1
+                msg = "handed to the pilot in the air: the descent without height found no floor"
+                raise FlightError(msg)
             return
 
 

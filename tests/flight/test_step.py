@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 from mkflight.config import Config
 from mkflight.control.limits import command_within_limits
 from mkflight.control.phases import Phase, PhaseRequests
-from mkflight.flight.step import BLIND_DESCENT_S, MAX_HOLD_OFFSET_M, FlightCore
+from mkflight.control.descent import DescentParams
+from mkflight.flight.step import MAX_HOLD_OFFSET_M, FlightCore
 from mkflight.msgs import ImuSample, Pose2D
 from mkflight.safety.failsafe import FailsafeAction
 
@@ -164,19 +165,24 @@ def test_a_pose_applied_after_a_debugout_gap_is_fresh() -> None:
     assert out.phase is Phase.HOLD
 
 
-def test_a_blind_descent_handed_to_the_pilot_never_takes_control_again() -> None:
-    """No pose and no height while flying: level blind descent, then the pilot's sticks
-    after BLIND_DESCENT_S; when the laser comes back, control is NOT taken again."""
+def test_a_descent_that_finds_no_floor_hands_to_the_pilot_for_good() -> None:
+    """No pose and no height while flying, and an IMU that shows the vehicle sinking
+    whatever the gas (1 m/s² down): the descent finds no floor and hands control to the
+    pilot in the air after DescentParams.max_s; when the laser comes back, control is NOT
+    taken again."""
     core = FlightCore(Config())
     t_ns = fly_to_hold(core)
     outs = []
-    for _ in range(int((BLIND_DESCENT_S + 3.0) * 1e9 / STEP_NS)):  # the laser is gone
+    for _ in range(int((DescentParams().max_s + 3.0) * 1e9 / STEP_NS)):  # the laser is gone
         t_ns += STEP_NS
-        outs.append(core.imu_step(level_imu(t_ns), PhaseRequests(takeoff=True, handshake_ok=True)))
+        sinking = level_imu(t_ns, acc_z_mps2=-8.81)
+        outs.append(core.imu_step(sinking, PhaseRequests(takeoff=True, handshake_ok=True)))
     assert any(o.command.take_control and o.command.gas_counts > 0 for o in outs[:20])
     assert not outs[-1].command.take_control
     assert outs[-1].phase is Phase.RELEASED
     assert any(e.reason == "handed to the pilot in the air" for o in outs for e in o.phase_events)
+    assert core.handed_in_air
+    assert "no floor found" in " ".join(core.counters.failsafe_events)
     for _ in range(100):  # the laser is back: still the pilot's
         t_ns += STEP_NS
         if t_ns % (2 * STEP_NS) == 0:
@@ -184,3 +190,18 @@ def test_a_blind_descent_handed_to_the_pilot_never_takes_control_again() -> None
         out = core.imu_step(level_imu(t_ns), PhaseRequests(takeoff=True, handshake_ok=True))
         assert not out.command.take_control
         assert out.phase is Phase.RELEASED
+
+
+def test_a_vehicle_that_does_not_move_when_the_gas_falls_rests_on_the_floor() -> None:
+    """No laser, and an IMU that never shows motion: the descent's probe lowers the gas,
+    nothing falls, so the vehicle rests on something: LANDED, gas cut, then released."""
+    core = FlightCore(Config())
+    t_ns = fly_to_hold(core)
+    outs = []
+    for _ in range(int(DescentParams().max_s * 1e9 / STEP_NS)):
+        t_ns += STEP_NS
+        outs.append(core.imu_step(level_imu(t_ns), PhaseRequests(takeoff=True, handshake_ok=True)))
+    events = [e for o in outs for e in o.phase_events]
+    assert any(e.to_phase is Phase.LANDED and "floor" in e.reason for e in events)
+    assert outs[-1].phase is Phase.RELEASED
+    assert not core.handed_in_air

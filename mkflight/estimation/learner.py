@@ -1,0 +1,173 @@
+"""What the flight learns of its airframe while it holds: biases, hover gas, vibration.
+
+An airframe on its first flight differs from the configuration in every constant
+(issue 17: hover gas 82-115 counts, accelerometer offsets of ±10 counts, a horizon off
+by 0.02 rad, vibration of 5-30 counts). While the vehicle holds on the laser, three of
+them are observable with simple averages, because a vehicle that holds its height and
+position does not accelerate on average:
+
+* **accelerometer bias** (level frame, seed eq 9-14's output): the mean level-frame
+  acceleration over HOLD is the sum of the accelerometer offsets and the horizon error
+  seen through gravity (``g·sin(bias)``). The estimator subtracts it, so the
+  complementary filter's velocity (eq 15-17) is no longer off by ``bias / k``, and a
+  descent without the laser integrates an unbiased AccZ (:mod:`mkflight.control.descent`);
+* **hover gas**: the mean gas command over HOLD, normalised like the altitude loop's
+  feed-forward (``hover_gas · (V_hover / V) / (cos θ cos φ)``, seed §M) to the gas that
+  would hold the weight level at ``control.hover_voltage_v``. It is what the blind
+  descent's thrust model and ``mkflight tune`` use;
+* **vibration**: the accelerometer noise per body axis, from successive differences
+  (``std(f_k - f_{k-1}) / √2`` removes anything slower than a sample): the trust the
+  estimator gives the accelerometers (:func:`filter_gains`).
+
+Averages are exponential with :data:`LEARN_TAU_S` (bias, hover gas) and
+:data:`NOISE_TAU_S` (vibration), started as plain means, updated only on the steps the
+caller marks as steady (HOLD, laser valid, no failsafe, slow vertical speed), and count
+as learned after :data:`MIN_LEARN_S` of them. Pure: no clock, no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Final
+
+from mkflight.clock import NS_PER_S
+
+Vec3 = tuple[float, float, float]
+
+LEARN_TAU_S: Final = 10.0
+"""Averaging time of the biases and the hover gas (s): long against a gust, short
+against a pack's sag."""
+NOISE_TAU_S: Final = 5.0
+"""Averaging time of the vibration (s)."""
+MIN_LEARN_S: Final = 5.0
+"""Steady time before a learned value is used (s)."""
+MAX_SAMPLE_GAP_S: Final = 0.2
+"""Two samples further apart are not successive (no difference, no averaging weight)."""
+MAX_DIFF_MPS2: Final = 50.0
+"""A sample-to-sample change beyond this is clamped (a glitch, not vibration)."""
+MAX_BIAS_MPS2: Final = 3.0
+MAX_GAS_COUNTS: Final = 255.0
+"""The gas is a byte: a normalised hover gas beyond it is clamped."""
+"""A learned bias beyond this is not a bias (a stuck sensor): it is clamped."""
+
+
+class _Mean:
+    """An exponential mean over time that starts as a plain mean (no start-up bias)."""
+
+    __slots__ = ("span_s", "tau_s", "value")
+
+    def __init__(self, tau_s: float) -> None:
+        self.tau_s = tau_s
+        self.value = 0.0
+        self.span_s = 0.0  # time accumulated so far
+
+    def add(self, x: float, dt_s: float) -> None:
+        """Add ``x`` held for ``dt_s``: the weight is ``dt/span`` early, ``1-e^(-dt/τ)`` later."""
+        self.span_s += dt_s
+        weight = max(dt_s / self.span_s, 1.0 - math.exp(-dt_s / self.tau_s))
+        self.value += weight * (x - self.value)
+
+
+@dataclass(frozen=True, slots=True)
+class LearnedAirframe:
+    """What has been learned so far (None: not yet, see :data:`MIN_LEARN_S`).
+
+    Attributes:
+        bias_level_mps2: mean level-frame acceleration in HOLD (FRD: forward, right,
+            down along the heading), the accelerometer offsets plus the horizon error.
+        hover_gas_counts: gas holding the weight at ``hover_voltage_v``, level.
+        vibration_mps2: accelerometer noise per body axis (x, y, z), one sample's std.
+        steady_s: how long the learning has run.
+    """
+
+    bias_level_mps2: Vec3 | None
+    hover_gas_counts: float | None
+    vibration_mps2: Vec3 | None
+    steady_s: float
+
+    def as_dict(self) -> dict[str, object]:
+        """Plain values for ``flight.json`` (``learned``), rounded."""
+
+        def r(v: Vec3 | None, n: int) -> list[float] | None:
+            return None if v is None else [round(x, n) for x in v]
+
+        return {
+            "bias_level_mps2": r(self.bias_level_mps2, 4),
+            "hover_gas_counts": None
+            if self.hover_gas_counts is None
+            else round(self.hover_gas_counts, 2),
+            "vibration_mps2": r(self.vibration_mps2, 4),
+            "steady_s": round(self.steady_s, 2),
+        }
+
+
+class AirframeLearner:
+    """Biases, hover gas and vibration from the steady part of a flight (module docstring)."""
+
+    def __init__(self, hover_voltage_v: float) -> None:
+        """Normalise the hover gas to ``hover_voltage_v`` (``control.hover_voltage_v``)."""
+        self._hover_voltage_v = hover_voltage_v
+        self._bias = (_Mean(LEARN_TAU_S), _Mean(LEARN_TAU_S), _Mean(LEARN_TAU_S))
+        self._hover = _Mean(LEARN_TAU_S)
+        self._noise = (_Mean(NOISE_TAU_S), _Mean(NOISE_TAU_S), _Mean(NOISE_TAU_S))
+        self._last: tuple[int, Vec3] | None = None  # the previous sample (t_ns, f_body)
+        self._steady_s = 0.0
+
+    def observe(
+        self,
+        t_ns: int,
+        *,
+        acc_level_mps2: Vec3,
+        f_body_mps2: Vec3,
+        gas_factor: float,
+        gas_counts: float,
+        steady: bool,
+    ) -> None:
+        """One IMU step: learn from it if ``steady``.
+
+        Args:
+            t_ns: the sample's time.
+            acc_level_mps2: its level-frame acceleration (eq 9-14, gravity removed, FRD),
+                WITHOUT any bias correction.
+            f_body_mps2: its body specific force (the accelerometers, FRD).
+            gas_factor: the feed-forward's factor for this step,
+                ``(V_hover / V) / (cos θ cos φ)``: the hover gas is ``gas / gas_factor``.
+            gas_counts: the gas the FC flew during this sample (the last command).
+            steady: HOLD on a valid laser, no failsafe, slow vertical speed: learn.
+        """
+        last, self._last = self._last, (t_ns, f_body_mps2)
+        if last is None or not steady:
+            return
+        dt_s = (t_ns - last[0]) / NS_PER_S
+        if not 0.0 < dt_s <= MAX_SAMPLE_GAP_S:
+            return
+        values = (*acc_level_mps2, *f_body_mps2, gas_factor, gas_counts)
+        if not all(math.isfinite(v) for v in values) or gas_factor <= 0.0:
+            return
+        self._steady_s += dt_s
+        for mean, a in zip(self._bias, acc_level_mps2, strict=True):
+            mean.add(max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, a)), dt_s)
+        hover = gas_counts / gas_factor
+        if math.isfinite(hover):
+            self._hover.add(max(0.0, min(MAX_GAS_COUNTS, hover)), dt_s)
+        for mean, f, f0 in zip(self._noise, f_body_mps2, last[1], strict=True):
+            diff = max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, f - f0))
+            mean.add(0.5 * diff * diff, dt_s)
+
+    @property
+    def ready(self) -> bool:
+        """Learned long enough to be used (:data:`MIN_LEARN_S`)."""
+        return self._steady_s >= MIN_LEARN_S
+
+    def learned(self) -> LearnedAirframe:
+        """The values learned so far; None for each before :data:`MIN_LEARN_S`."""
+        if not self.ready:
+            return LearnedAirframe(None, None, None, self._steady_s)
+
+        def clamp(v: float) -> float:
+            return max(-MAX_BIAS_MPS2, min(MAX_BIAS_MPS2, v))
+
+        bx, by, bz = (clamp(m.value) for m in self._bias)
+        nx, ny, nz = (math.sqrt(max(m.value, 0.0)) for m in self._noise)
+        return LearnedAirframe((bx, by, bz), self._hover.value, (nx, ny, nz), self._steady_s)

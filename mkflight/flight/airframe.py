@@ -1,0 +1,241 @@
+"""What the flight step knows of its airframe, and how it comes down without the hat.
+
+:class:`FlightAirframe` gathers, for :class:`~mkflight.flight.step.FlightCore`, the three
+pieces that make a flight fit the vehicle it is on (issue 17) rather than the
+configuration:
+
+* the **learner** (:mod:`mkflight.estimation.learner`): accelerometer biases, hover gas
+  and vibration from the steady part of HOLD; the biases go into the estimator at once;
+* the **vertical channel without the hat** (:mod:`mkflight.estimation.vertical`): from
+  the step the hat height is lost, height and vertical speed come from the thrust model
+  with the learned hover gas, checked by AccZ;
+* the **descent** (:mod:`mkflight.control.descent`): a landing that cannot fly on the hat
+  height flies on that channel (or on the hat alone when the FC's samples are unusable),
+  finds the floor, and only gives up to the pilot if it finds none.
+
+Pure like the flight step: values and times in, values out.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+from mkflight.clock import NS_PER_S
+from mkflight.config import Config
+from mkflight.control.altitude import hover_feedforward
+from mkflight.control.descent import Descent, DescentOutput, DescentParams
+from mkflight.estimation.estimator import Estimator
+from mkflight.estimation.learner import AirframeLearner
+from mkflight.estimation.vertical import VerticalDeadReckoning
+from mkflight.msgs import Estimate, ImuSample
+
+LEARN_AFTER_HOLD_S = 2.0
+"""The airframe is learned from HOLD steps this long after HOLD began (not the take-off)."""
+LEARN_MAX_VZ_MPS = 0.2
+"""... and only while the vertical speed is below this."""
+LASER_HEIGHT_FRESH_S = 0.3
+"""A descent without usable FC samples flies on a hat height at most this old."""
+
+
+def gas_factor(cfg: Config, pitch_rad: float, roll_rad: float, battery_v: float) -> float | None:
+    """The altitude feed-forward's factor ``(V_hover / V) / (cos θ cos φ)``, or None."""
+    if not (math.isfinite(pitch_rad) and math.isfinite(roll_rad) and math.isfinite(battery_v)):
+        return None
+    c = cfg.control
+    if battery_v <= 0.0 or c.hover_gas <= 0.0:
+        return None
+    ff = hover_feedforward(c, pitch_rad=pitch_rad, roll_rad=roll_rad, battery_v=battery_v)
+    return ff / c.hover_gas
+
+
+def _finite_imu(imu: ImuSample) -> bool:
+    values = (imu.pitch_rad, imu.roll_rad, imu.acc_x_mps2, imu.acc_y_mps2, imu.acc_z_mps2)
+    return all(math.isfinite(v) for v in values)
+
+
+class FlightAirframe:
+    """The learner, the vertical channel without the hat and the descent (module docstring)."""
+
+    def __init__(self, cfg: Config, estimator: Estimator) -> None:
+        """Learn for ``estimator`` (it gets the biases) with ``cfg``'s hover voltage and gains."""
+        self.cfg = cfg
+        self.estimator = estimator
+        self.learner = AirframeLearner(cfg.control.hover_voltage_v)
+        self.vertical: VerticalDeadReckoning | None = None
+        """The model-aided vertical channel while the hat gives no height (else None)."""
+        self.descent: Descent | None = None
+        self.log: list[str] = []
+        """What the descents without a hat height did, for ``flight.json``."""
+        self._laser_height: tuple[int, int, float] | None = None  # (arrival, scan t_ns, m)
+
+    # ----------------------------------------------------------------- learning
+    def observe(
+        self,
+        imu: ImuSample,
+        est: Estimate,
+        *,
+        hold_s: float | None,
+        quiet: bool,
+        gas_counts: int,
+    ) -> None:
+        """Learn from this (finite, fresh) sample if the flight is steady.
+
+        Args:
+            imu: the sample the estimator just took.
+            est: the estimate after it.
+            hold_s: seconds since HOLD began (None: not in HOLD).
+            quiet: no failsafe beyond a warning, and we have control.
+            gas_counts: the gas the FC flew during this sample (the last command).
+        """
+        acc_l = self.estimator.last_acc_level
+        factor = gas_factor(self.cfg, imu.pitch_rad, imu.roll_rad, imu.battery_v)
+        if acc_l is None or factor is None:
+            return
+        steady = (
+            hold_s is not None
+            and hold_s >= LEARN_AFTER_HOLD_S
+            and est.pose_valid
+            and est.height_valid
+            and quiet
+            and abs(est.vz_up_mps) < LEARN_MAX_VZ_MPS
+        )
+        self.learner.observe(
+            imu.t_ns,
+            acc_level_mps2=acc_l,
+            f_body_mps2=(imu.acc_x_mps2, imu.acc_y_mps2, imu.acc_z_mps2),
+            gas_factor=factor,
+            gas_counts=float(gas_counts),
+            steady=steady,
+        )
+        learned = self.learner.learned()
+        if steady and learned.bias_level_mps2 is not None:
+            self.estimator.set_acc_bias(learned.bias_level_mps2)
+
+    def hat_height(self, arrival_ns: int, scan_t_ns: int, height_m: float | None) -> None:
+        """A hat height arrived (None or NaN: none): the descent may fly on it."""
+        if height_m is not None and math.isfinite(height_m):
+            self._laser_height = (arrival_ns, scan_t_ns, height_m)
+
+    def learned(self) -> dict[str, object]:
+        """What the flight learned of its airframe and how it used it (``flight.json``)."""
+        kxy, kz = self.estimator.filter_gains
+        out: dict[str, object] = self.learner.learned().as_dict()
+        out["bias_used_mps2"] = [round(v, 4) for v in self.estimator.acc_bias_level]
+        out["filter_gains_per_s"] = [round(kxy, 3), round(kz, 3)]
+        out["descents"] = list(self.log)
+        return out
+
+    # ----------------------------------------------------------------- without the hat
+    def acc_up(self, imu: ImuSample, fresh: bool) -> float | None:
+        """This sample's level-frame vertical acceleration, bias removed (m/s^2, up)."""
+        acc_l = self.estimator.last_acc_level
+        if not fresh or acc_l is None or not _finite_imu(imu):
+            return None
+        a_up = self.estimator.acc_bias_level[2] - acc_l[2]
+        return a_up if math.isfinite(a_up) else None
+
+    def hover_gas(self, factor: float | None, integral_gas: float) -> float:
+        """The gas holding the weight at the hover voltage: learned, else the loop's view.
+
+        ``integral_gas`` is the altitude loop's inner integral (what it adds to the
+        configured feed-forward now).
+        """
+        learned = self.learner.learned().hover_gas_counts
+        if learned is not None:
+            return learned
+        return self.cfg.control.hover_gas + integral_gas / (factor or 1.0)
+
+    def _factor(self, imu: ImuSample) -> float | None:
+        factor = gas_factor(self.cfg, imu.pitch_rad, imu.roll_rad, imu.battery_v)
+        if factor is None:  # no attitude (NaN): level, as commanded
+            factor = gas_factor(self.cfg, 0.0, 0.0, imu.battery_v)
+        return factor
+
+    def without_hat(
+        self,
+        imu: ImuSample,
+        est: Estimate,
+        *,
+        fresh: bool,
+        flying: bool,
+        gas_counts: int,
+        integral_gas: float,
+    ) -> Estimate:
+        """``est``, with height and vz from the model-aided channel while the hat is gone."""
+        if est.height_valid or not flying:
+            self.vertical = None
+            return est
+        factor = self._factor(imu)
+        if self.vertical is None:
+            vib = self.learner.learned().vibration_mps2
+            self.vertical = VerticalDeadReckoning(
+                t_ns=imu.t_ns,
+                height_m=est.height_m,
+                vz_up_mps=est.vz_up_mps,
+                hover_gas_counts=self.hover_gas(factor, integral_gas),
+                gas_counts=float(gas_counts),
+                noise_mps2=None if vib is None else vib[2],
+                g_mps2=self.cfg.mk.g_mps2,
+            )
+        v = self.vertical.step(
+            imu.t_ns,
+            gas_counts=float(gas_counts),
+            gas_factor=1.0 if factor is None else factor,
+            acc_up_mps2=self.acc_up(imu, fresh),
+        )
+        return replace(est, height_m=v.height_m, vz_up_mps=v.vz_up_mps)
+
+    def descend(
+        self,
+        t_ns: int,
+        imu: ImuSample,
+        est: Estimate,
+        *,
+        inertial: bool,
+        integral_gas: float,
+        since: str,
+    ) -> DescentOutput:
+        """One step of a landing without the hat height (:mod:`mkflight.control.descent`).
+
+        Args:
+            t_ns: this step's time.
+            imu: this step's sample.
+            est: the estimate (height and vz from :meth:`without_hat` when the hat is gone).
+            inertial: the FC's samples are good; otherwise the hat alone, else nothing.
+            integral_gas: the altitude loop's inner integral (the hover gas if not learned).
+            since: the flight time now, for the log (``t+12.35s``).
+        """
+        factor = self._factor(imu)
+        if self.descent is None:
+            vib = self.learner.learned().vibration_mps2
+            self.descent = Descent(
+                DescentParams.from_config(self.cfg.control, self.cfg.mk.g_mps2),
+                t_ns=t_ns,
+                vz_up_mps=est.vz_up_mps if inertial else math.nan,
+                hover_gas_counts=self.hover_gas(factor, integral_gas),
+                noise_mps2=None if vib is None else vib[2],
+            )
+            self.log.append(f"{since} start")
+        d = self.descent
+        hat: tuple[int, float] | None = None
+        lh = self._laser_height
+        if lh is not None and (t_ns - lh[0]) / NS_PER_S <= LASER_HEIGHT_FRESH_S:
+            hat = (lh[1], lh[2])
+        mode_before = d.mode
+        out = d.step(
+            t_ns,
+            gas_factor=1.0 if factor is None else factor,
+            vz_up_mps=est.vz_up_mps if inertial else None,
+            height_m=est.height_m if inertial else None,
+            acc_up_mps2=self.acc_up(imu, inertial),
+            hat=hat,
+        )
+        if self.vertical is not None:
+            if out.stopped:
+                self.vertical.rest()
+            if out.vz_reset_mps is not None:
+                self.vertical.set_velocity(out.vz_reset_mps)
+        if d.mode is not mode_before or out.note:
+            self.log.append(f"{since} {d.mode.value}: {out.note or 'mode'}")
+        return out
