@@ -7,10 +7,12 @@ them are observable with simple averages, because a vehicle that holds its heigh
 position does not accelerate on average:
 
 * **accelerometer bias** (level frame, seed eq 9-14's output): the mean level-frame
-  acceleration over HOLD is the sum of the accelerometer offsets and the horizon error
-  seen through gravity (``g·sin(bias)``). The estimator subtracts it, so the
-  complementary filter's velocity (eq 15-17) is no longer off by ``bias / k``, and a
-  descent without the laser integrates an unbiased AccZ (:mod:`mkflight.control.descent`);
+  acceleration is the sum of the accelerometer offsets and the horizon error seen
+  through gravity (``g·sin(bias)``). It is measured first on the floor before take-off
+  (motors off: no vibration, the classic calibration at rest), then refined in HOLD. The
+  estimator subtracts it, so the complementary filter's velocity (eq 15-17) is no
+  longer off by ``bias / k`` (a height offset of 2 cm on the nominal simulator for a
+  0.14 m/s² AccZ offset), and a descent without the laser integrates an unbiased AccZ;
 * **hover gas**: the mean gas command over HOLD, normalised like the altitude loop's
   feed-forward (``hover_gas · (V_hover / V) / (cos θ cos φ)``, seed §M) to the gas that
   would hold the weight level at ``control.hover_voltage_v``. It is what the blind
@@ -42,6 +44,8 @@ NOISE_TAU_S: Final = 5.0
 """Averaging time of the vibration (s)."""
 MIN_LEARN_S: Final = 5.0
 """Steady time before a learned value is used (s)."""
+MIN_REST_S: Final = 0.5
+"""Time at rest before the biases are used (s): without vibration they settle at once."""
 MAX_SAMPLE_GAP_S: Final = 0.2
 """Two samples further apart are not successive (no difference, no averaging weight)."""
 MAX_DIFF_MPS2: Final = 50.0
@@ -113,6 +117,7 @@ class AirframeLearner:
         self._noise = (_Mean(NOISE_TAU_S), _Mean(NOISE_TAU_S), _Mean(NOISE_TAU_S))
         self._last: tuple[int, Vec3] | None = None  # the previous sample (t_ns, f_body)
         self._steady_s = 0.0
+        self._rest_s = 0.0
 
     def observe(
         self,
@@ -123,8 +128,9 @@ class AirframeLearner:
         gas_factor: float,
         gas_counts: float,
         steady: bool,
+        at_rest: bool = False,
     ) -> None:
-        """One IMU step: learn from it if ``steady``.
+        """One IMU step: learn from it if ``steady`` (or, for the biases, ``at_rest``).
 
         Args:
             t_ns: the sample's time.
@@ -134,20 +140,26 @@ class AirframeLearner:
             gas_factor: the feed-forward's factor for this step,
                 ``(V_hover / V) / (cos θ cos φ)``: the hover gas is ``gas / gas_factor``.
             gas_counts: the gas the FC flew during this sample (the last command).
-            steady: HOLD on a valid laser, no failsafe, slow vertical speed: learn.
+            steady: HOLD on a valid laser, no failsafe, slow vertical speed: learn all.
+            at_rest: standing on the floor with the motors off before take-off: learn the
+                biases only (no vibration then, so they are exact at once).
         """
         last, self._last = self._last, (t_ns, f_body_mps2)
-        if last is None or not steady:
+        if last is None or not (steady or at_rest):
             return
         dt_s = (t_ns - last[0]) / NS_PER_S
         if not 0.0 < dt_s <= MAX_SAMPLE_GAP_S:
             return
         values = (*acc_level_mps2, *f_body_mps2, gas_factor, gas_counts)
-        if not all(math.isfinite(v) for v in values) or gas_factor <= 0.0:
+        if not all(math.isfinite(v) for v in values) or (steady and gas_factor <= 0.0):
             return
-        self._steady_s += dt_s
+        if not steady:
+            self._rest_s += dt_s
         for mean, a in zip(self._bias, acc_level_mps2, strict=True):
             mean.add(max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, a)), dt_s)
+        if not steady:
+            return
+        self._steady_s += dt_s
         hover = gas_counts / gas_factor
         if math.isfinite(hover):
             self._hover.add(max(0.0, min(MAX_GAS_COUNTS, hover)), dt_s)
@@ -161,13 +173,20 @@ class AirframeLearner:
         return self._steady_s >= MIN_LEARN_S
 
     def learned(self) -> LearnedAirframe:
-        """The values learned so far; None for each before :data:`MIN_LEARN_S`."""
-        if not self.ready:
-            return LearnedAirframe(None, None, None, self._steady_s)
+        """The values learned so far (None: not yet).
+
+        The biases after :data:`MIN_REST_S` at rest or :data:`MIN_LEARN_S` steady, the
+        hover gas and the vibration after :data:`MIN_LEARN_S` steady.
+        """
 
         def clamp(v: float) -> float:
             return max(-MAX_BIAS_MPS2, min(MAX_BIAS_MPS2, v))
 
-        bx, by, bz = (clamp(m.value) for m in self._bias)
+        bias: Vec3 | None = None
+        if self._rest_s >= MIN_REST_S or self.ready:
+            bx, by, bz = (clamp(m.value) for m in self._bias)
+            bias = (bx, by, bz)
+        if not self.ready:
+            return LearnedAirframe(bias, None, None, self._steady_s)
         nx, ny, nz = (math.sqrt(max(m.value, 0.0)) for m in self._noise)
-        return LearnedAirframe((bx, by, bz), self._hover.value, (nx, ny, nz), self._steady_s)
+        return LearnedAirframe(bias, self._hover.value, (nx, ny, nz), self._steady_s)

@@ -34,6 +34,10 @@ LEARN_AFTER_HOLD_S = 2.0
 """The airframe is learned from HOLD steps this long after HOLD began (not the take-off)."""
 LEARN_MAX_VZ_MPS = 0.2
 """... and only while the vertical speed is below this."""
+BIAS_RATE_MPS3 = 0.02
+"""The estimator's bias moves towards the learned one at most this fast (m/s^2 per s)."""
+LEARN_STEP_S = 0.0532
+"""The nominal step (a DebugOut every 52 FC ticks), for the rate above."""
 LASER_HEIGHT_FRESH_S = 0.3
 """A descent without usable FC samples flies on a hat height at most this old."""
 
@@ -78,8 +82,9 @@ class FlightAirframe:
         hold_s: float | None,
         quiet: bool,
         gas_counts: int,
+        on_floor: bool = False,
     ) -> None:
-        """Learn from this (finite, fresh) sample if the flight is steady.
+        """Learn from this (finite, fresh) sample if the flight is steady or at rest.
 
         Args:
             imu: the sample the estimator just took.
@@ -87,11 +92,13 @@ class FlightAirframe:
             hold_s: seconds since HOLD began (None: not in HOLD).
             quiet: no failsafe beyond a warning, and we have control.
             gas_counts: the gas the FC flew during this sample (the last command).
+            on_floor: before take-off, motors off: the biases are learned at rest.
         """
         acc_l = self.estimator.last_acc_level
         factor = gas_factor(self.cfg, imu.pitch_rad, imu.roll_rad, imu.battery_v)
         if acc_l is None or factor is None:
             return
+        at_rest = on_floor and gas_counts == 0 and est.height_valid
         steady = (
             hold_s is not None
             and hold_s >= LEARN_AFTER_HOLD_S
@@ -107,10 +114,22 @@ class FlightAirframe:
             gas_factor=factor,
             gas_counts=float(gas_counts),
             steady=steady,
+            at_rest=at_rest,
         )
         learned = self.learner.learned()
-        if steady and learned.bias_level_mps2 is not None:
+        if at_rest and learned.bias_level_mps2 is not None:  # on the floor: take it at once
             self.estimator.set_acc_bias(learned.bias_level_mps2)
+        elif steady and learned.bias_level_mps2 is not None:
+            # towards the learned value at a bounded rate: a step in the bias would be a
+            # step in the filter's velocity (eq 15-17), i.e. a kick to the loops
+            step = BIAS_RATE_MPS3 * LEARN_STEP_S
+            now = self.estimator.acc_bias_level
+            self.estimator.set_acc_bias(
+                tuple(  # type: ignore[arg-type]
+                    b + max(-step, min(step, target - b))
+                    for b, target in zip(now, learned.bias_level_mps2, strict=True)
+                )
+            )
 
     def hat_height(self, arrival_ns: int, scan_t_ns: int, height_m: float | None) -> None:
         """A hat height arrived (None or NaN: none): the descent may fly on it."""

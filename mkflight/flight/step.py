@@ -305,6 +305,7 @@ class FlightCore:
                 hold_s=(t_ns - st.phase_start_ns) / NS_PER_S if st.phase is Phase.HOLD else None,
                 quiet=fs.action <= FailsafeAction.WARN and self.last_command.take_control,
                 gas_counts=self.last_command.gas_counts,
+                on_floor=st.phase in (Phase.PREFLIGHT, Phase.HANDSHAKE),
             )
         if not (est.pose_valid and est.height_valid):
             requests = PhaseRequests(

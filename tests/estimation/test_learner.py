@@ -65,6 +65,32 @@ def test_bias_hover_gas_and_vibration_are_learned() -> None:
     assert learned.steady_s == pytest.approx(40.0, abs=0.1)
 
 
+def test_the_biases_are_learned_at_rest_before_take_off() -> None:
+    """On the floor, motors off: no vibration, the biases settle in MIN_REST_S; then HOLD
+    refines them (a shift of the AccZ offset with the motors running is followed)."""
+    learner = AirframeLearner(11.8)
+    t_ns = 0
+    for _ in range(20):  # the handshake: 1 s at rest, a slight AccZ offset
+        t_ns += STEP_NS
+        learner.observe(
+            t_ns,
+            acc_level_mps2=(0.1, -0.05, 0.2),
+            f_body_mps2=(0.1, -0.05, -9.61),
+            gas_factor=0.9,
+            gas_counts=0.0,
+            steady=False,
+            at_rest=True,
+        )
+    learned = learner.learned()
+    assert learned.bias_level_mps2 == pytest.approx((0.1, -0.05, 0.2))
+    assert learned.hover_gas_counts is None  # nothing of the kind at rest
+    assert learned.vibration_mps2 is None
+    feed(learner, 60.0, bias=(0.1, -0.05, 0.3), noise=0.2, t0_ns=t_ns + STEP_NS)
+    bias = learner.learned().bias_level_mps2
+    assert bias is not None
+    assert bias[2] == pytest.approx(0.3, abs=0.03)
+
+
 def test_unsteady_steps_teach_nothing() -> None:
     learner = AirframeLearner(11.8)
     t_ns = feed(learner, 20.0, bias=(1.0, 1.0, 1.0), gas=50.0, steady=False)
