@@ -176,31 +176,50 @@ class SimFcConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_on
 
 
 class SimVehicleConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """The simulated airframe (``mkflight.sim.vehicle``, SPEC §8): what the loops must cope with.
+    """The nominal simulated airframe's TRUE constants (``mkflight.sim.airframe``, SPEC §8).
 
-    ``hover_gas`` is the airframe's true hover gas at ``control.hover_voltage_v``; it
-    differs from ``control.hover_gas`` (the controller's feed-forward) on purpose, as a
-    real airframe does from its tuning.
+    A second opinion, not a mirror: nothing here is read by the flight code, and the
+    simulator reads nothing of ``mk``, ``control`` or the flight code's calibration. The
+    defaults are SPEC §8's nominal airframe; ``hover_gas`` (104) differs from
+    ``control.hover_gas`` (100, the controller's feed-forward) on purpose, as a real airframe
+    does from its tuning. ``sim.airframe: random`` ignores this section and draws every
+    constant from the envelope (``mkflight.sim.airframe.ENVELOPE``).
     """
 
     mass_kg: Annotated[float, Meta(gt=0, le=20)] = 1.04
     hover_gas: Annotated[float, Meta(gt=0, le=255)] = 104.0
+    hover_voltage_v: Annotated[float, Meta(gt=0, le=60)] = 11.8
+    counts_per_rad: Annotated[float, Meta(gt=0, le=1000)] = 120.0
+    yaw_rate_radps_per_count: Annotated[float, Meta(gt=0, le=1)] = 0.02
+    yaw_drift_radps: Annotated[float, Meta(ge=-1, le=1)] = 0.0
     attitude_delay_s: Annotated[float, Meta(ge=0, le=1)] = 0.1
     attitude_tau_s: Annotated[float, Meta(gt=0, le=2)] = 0.1
+    gas_tau_s: Annotated[float, Meta(gt=0, le=1)] = 0.05
+    drag_linear_per_s: Annotated[float, Meta(ge=0, le=5)] = 0.3
+    ground_effect: Annotated[float, Meta(ge=0, le=1)] = 0.0
     gusts: bool = True
     wind_std_mps: Annotated[float, Meta(ge=0, le=5)] = 0.1
     wind_tau_s: Annotated[float, Meta(gt=0, le=60)] = 2.0
+    gust_accel_std_mps2: Annotated[float, Meta(ge=0, le=5)] = 0.0
+    gust_tau_s: Annotated[float, Meta(gt=0, le=60)] = 1.0
     trim_std_rad: Annotated[float, Meta(ge=0, le=0.2)] = 0.005
     acc_bias_std_mps2: Annotated[float, Meta(ge=0, le=2)] = 0.05
     vibration_std_mps2: Annotated[float, Meta(ge=0, le=5)] = 0.2
+    vibration_z_ratio: Annotated[float, Meta(ge=0, le=5)] = 1.0
     battery_capacity_ah: Annotated[float, Meta(gt=0, le=50)] = 2.2
     battery_used_ah: Annotated[float, Meta(ge=0, le=50)] = 0.0
+    laser_extra_delay_s: Annotated[float, Meta(ge=0, le=0.5)] = 0.0
+    laser_jitter_s: Annotated[float, Meta(ge=0, le=0.1)] = 0.0
+    debug_jitter_ticks: Annotated[int, Meta(ge=0, le=50)] = 0
+    debug_late_fraction: Annotated[float, Meta(ge=0, le=0.5)] = 0.0
 
 
 class SimConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """The simulator (SPEC §8)."""
 
     seed: Annotated[int, Meta(ge=0)] = 1
+    airframe: Literal["nominal", "random"] = "nominal"
+    """``random``: every airframe constant drawn from the envelope with ``seed``."""
     fc: SimFcConfig = msgspec.field(default_factory=SimFcConfig)
     vehicle: SimVehicleConfig = msgspec.field(default_factory=SimVehicleConfig)
 

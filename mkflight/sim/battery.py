@@ -11,7 +11,7 @@ import math
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from mkflight.sim.vehicle import VehicleParams
+    from mkflight.sim.vehicle_types import VehicleParams
 
 #: Per-cell LiPo open-circuit voltage vs state of charge (a generic 1C discharge curve;
 #: the seed's Fig. 26 shows each pack differs). (state of charge, volts per cell).
@@ -40,3 +40,21 @@ def current_a(thrust_n: float, battery_v: float, params: VehicleParams) -> float
     volts = max(battery_v, 0.1 * params.hover_voltage_v)
     motors = params.hover_current_a * ratio * math.sqrt(ratio) * params.hover_voltage_v / volts
     return params.avionics_current_a + motors
+
+
+def open_circuit_segment(used_ah: float, params: VehicleParams) -> tuple[float, float, float]:
+    """``(volts, dv_per_ah, until_ah)``: the OCV at ``used_ah`` and its line up to ``until_ah``.
+
+    :func:`open_circuit_v` is linear in the charge between two points of
+    :data:`LIPO_OCV_V`: up to ``until_ah`` it is ``volts + dv_per_ah (used - used_ah)``
+    exactly, so the vehicle's sub-steps need no table look-up (at the curve's ends, where it
+    is flat, the slope is 0 and ``until_ah`` is infinite or the empty pack's charge).
+    """
+    cap = params.battery_capacity_ah
+    soc = 1.0 - used_ah / cap
+    volts = open_circuit_v(used_ah, params)
+    if soc <= _SOC[0] or soc > _SOC[-1]:
+        return volts, 0.0, math.inf if soc <= _SOC[0] else (1.0 - _SOC[-1]) * cap
+    i = min(max(bisect.bisect_left(_SOC, soc) - 1, 0), len(_SOC) - 2)
+    slope_per_soc = params.battery_cells * (_OCV[i + 1] - _OCV[i]) / (_SOC[i + 1] - _SOC[i])
+    return volts, -slope_per_soc / cap, (1.0 - _SOC[i]) * cap

@@ -2,8 +2,10 @@
 
 :func:`imu_truth_si` is the noiseless DebugOut content in SI (the specific force
 ``R^T (a - g)``); :func:`imu_measured_si` and :func:`battery_reading_v` add what real
-flight adds: the motor vibration left in the FC's averaged accelerations, the attitude
-trim, accelerometer biases and noise.
+flight adds: the motor vibration left in the FC's averaged accelerations (``vibration_std_mps2``
+on x and y, ``vibration_z_ratio`` of that on z, scaled by thrust / weight), the attitude
+trim and accelerometer biases (the airframe's fixed ones plus this flight's draws: the
+state's :class:`~mkflight.sim.vehicle.FlightErrors`) and noise.
 """
 
 from __future__ import annotations
@@ -44,12 +46,14 @@ def imu_measured_si(state: VehicleState, params: VehicleParams, rng: np.random.G
 
     The FC's horizon is off by the trim (it flies ``command + trim``, reports ``true -
     trim``); the motor vibration left in its averaged accelerations scales with thrust
-    (``vibration_std_mps2`` at hover, none with the motors off).
+    (``vibration_std_mps2`` on x and y at hover, ``vibration_z_ratio`` of that on z, none
+    with the motors off).
     """
     truth = imu_truth_si(state, params)
     e = state.errors
     vib = params.vibration_std_mps2 * state.thrust_n / (params.mass_kg * params.g_mps2)
     acc_noise = rng.normal(0.0, 1.0, 3) * vib
+    acc_noise[2] *= params.vibration_z_ratio
     ang_noise = rng.normal(0.0, params.angle_noise_std_rad, 3)
     return ImuSi(
         truth.pitch_rad - e.pitch_trim_rad + float(ang_noise[0]),

@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mkflight.config import Config
+from mkflight.sim.airframe import airframe_from_config
 from mkflight.sim.battery import open_circuit_v
 from mkflight.sim.vehicle import (
     FlightErrors,
@@ -16,6 +17,7 @@ from mkflight.sim.vehicle import (
     VehicleParams,
     VehicleState,
     body_to_world,
+    ground_effect_factor,
     hover_gas_counts,
     initial_state,
     step,
@@ -25,6 +27,7 @@ from mkflight.sim.vehicle_sensors import battery_reading_v, imu_measured_si, imu
 
 CALM = VehicleParams(gusts=False)
 DT = 0.05
+WEIGHT_N = CALM.mass_kg * CALM.g_mps2
 
 
 def _hovering(params: VehicleParams, height_m: float = 1.0, used_ah: float = 1.1) -> VehicleState:
@@ -52,7 +55,8 @@ def _fly(
 
 def test_defaults_hover_at_the_airframes_hover_gas_not_the_controllers() -> None:
     cfg = Config()
-    p = VehicleParams.from_config(cfg)
+    p = airframe_from_config(cfg.sim)
+    assert p == VehicleParams()  # the defaults are the nominal airframe of the config
     assert p.hover_gas_counts == cfg.sim.vehicle.hover_gas == 104
     assert cfg.control.hover_gas == 100  # the controller's feed-forward is off by 4 %
     assert thrust_n(104, 11.8, p) == pytest.approx(p.mass_kg * p.g_mps2)
@@ -118,18 +122,28 @@ def test_attitude_response_is_delay_plus_first_order_lag() -> None:
 def test_ground_contact() -> None:
     s0 = initial_state(CALM, np.random.default_rng(0))
     assert s0.on_ground
+    assert s0.pos_w_m == (0.0, 0.0, 0.0)  # z = 0: resting with the motors off
     idle = _fly(s0, Sticks(nick_counts=50, yaw_counts=30, gas_counts=60), 2.0, CALM)
     assert idle.on_ground
-    assert idle.pos_w_m == (0.0, 0.0, 0.0)
+    assert idle.pos_w_m[:2] == (0.0, 0.0)  # the sticks neither tilt, turn nor slide it
     assert (idle.pitch_rad, idle.roll_rad, idle.yaw_rad) == (0.0, 0.0, 0.0)
-    assert imu_truth_si(idle, CALM)[3:] == pytest.approx((0.0, 0.0, -CALM.g_mps2))
+    # gas 60 carries ~58 % of the weight: the gear's compression is ~42 % of the sag
+    share = idle.thrust_n / WEIGHT_N
+    assert idle.height_m == pytest.approx(share * CALM.gear_sag_m, abs=1e-4)
+    assert idle.vel_w_mps == pytest.approx((0.0, 0.0, 0.0), abs=1e-4)  # the gear creeps
+    assert imu_truth_si(idle, CALM)[3:] == pytest.approx((0.0, 0.0, -CALM.g_mps2), abs=1e-3)
+    assert idle.touchdowns == ()
     up = _fly(idle, Sticks(gas_counts=130), 1.0, CALM)
     assert not up.on_ground
     assert up.height_m > 0.2
-    down = _fly(up, Sticks(gas_counts=0), 3.0, CALM)
+    assert up.touchdowns == ()  # a take-off is not a touchdown
+    down = _fly(up, Sticks(gas_counts=0), 4.0, CALM)
     assert down.on_ground
-    assert down.height_m == 0.0
-    assert down.vel_w_mps == (0.0, 0.0, 0.0)
+    assert down.height_m == pytest.approx(0.0, abs=1e-3)
+    assert down.vel_w_mps == pytest.approx((0.0, 0.0, 0.0), abs=1e-3)
+    ((t_touch, speed),) = down.touchdowns  # a hard one: the motors were cut in the air
+    assert up.t_s < t_touch < down.t_s
+    assert speed > 2.0
 
 
 def test_same_seed_same_flight() -> None:
@@ -148,7 +162,11 @@ def test_same_seed_same_flight() -> None:
 
 def test_gusts_push_a_few_cm_per_s2() -> None:
     p = VehicleParams()
-    s0 = replace(_hovering(p), wind_w_mps=(0.0, 0.0, 0.0))
+    s0 = replace(
+        initial_state(p, np.random.default_rng(0), pos_w_m=(0.0, 0.0, -1.0), gust_seed=3),
+        errors=FlightErrors(),
+        thrust_n=WEIGHT_N,
+    )
     gas = hover_gas_counts(s0, p)
     rng = np.random.default_rng(3)
     acc = []
@@ -239,7 +257,9 @@ def test_random_inputs_stay_finite_and_physical(
             values = [*s.pos_w_m, *s.vel_w_mps, *s.acc_w_mps2, s.pitch_rad, s.roll_rad, s.yaw_rad]
             values += [*imu_truth_si(s, p), s.battery_v, s.thrust_n]
             assert all(math.isfinite(v) for v in values)
-            assert s.pos_w_m[2] <= 0.0  # never below the floor
+            # never far into the floor: the gear stops even a 10 m/s crash within ~0.3 m
+            assert s.pos_w_m[2] <= 0.3
+            assert s.on_ground == (s.pos_w_m[2] > -p.gear_sag_m)
             assert max(abs(s.pitch_rad), abs(s.roll_rad)) <= p.max_tilt_rad + 0.02
             assert math.hypot(*s.vel_w_mps) < 40.0  # drag bounds the speed
             assert s.used_ah >= used
@@ -254,11 +274,107 @@ def test_without_thrust_or_wind_energy_never_grows(
     s = replace(_hovering(CALM, height_m=h), vel_w_mps=(vx, vy, vz), thrust_n=0.0)
     rng = np.random.default_rng(0)
 
+    w2 = CALM.g_mps2 / CALM.gear_sag_m  # the gear's spring per unit mass
+
     def energy(v: VehicleState) -> float:
-        return 0.5 * sum(c * c for c in v.vel_w_mps) + CALM.g_mps2 * v.height_m
+        compression = max(v.pos_w_m[2] + CALM.gear_sag_m, 0.0)
+        spring = 0.5 * w2 * compression * compression
+        return 0.5 * sum(c * c for c in v.vel_w_mps) + CALM.g_mps2 * v.height_m + spring
 
     e = energy(s)
     for _ in range(40):
         s = step(s, Sticks(gas_counts=0), 0.02, CALM, rng)
         assert energy(s) <= e + 1e-3
         e = energy(s)
+
+
+def test_ground_effect_adds_thrust_near_the_floor_only() -> None:
+    p = replace(CALM, ground_effect=0.15, drag_linear_per_s=0.0, drag_quadratic_per_m=0.0)
+    r = p.ground_effect_height_m
+    assert ground_effect_factor(0.0, p) == pytest.approx(1.15)
+    assert ground_effect_factor(-0.003, p) == pytest.approx(1.15)  # the gear compressed
+    assert ground_effect_factor(r, p) == pytest.approx(1.0 + 0.15 / 4)
+    assert (ground_effect_factor(0.6, p) - 1.0) / 0.15 == pytest.approx(0.0204, abs=1e-3)
+    for height in (0.05, 0.2, 0.6, 2.0):
+        s = replace(_hovering(p, height_m=height), thrust_n=WEIGHT_N)
+        s = step(s, Sticks(gas_counts=hover_gas_counts(s, p)), 1e-4, p, np.random.default_rng(0))
+        up_mps2 = -s.acc_w_mps2[2]  # the weight is held: what is left is the ground effect
+        assert up_mps2 == pytest.approx(
+            p.g_mps2 * (ground_effect_factor(height, p) - 1.0), abs=2e-3
+        )
+    # on the floor the same gas lifts it sooner: the hover gas out of ground effect would not
+    on_floor = initial_state(p, np.random.default_rng(0))
+    gas = 0.9 * hover_gas_counts(on_floor, p)
+    assert not _fly(on_floor, Sticks(gas_counts=gas), 2.0, p).on_ground  # 0.9 * 1.15 > 1
+    assert _fly(on_floor, Sticks(gas_counts=gas), 2.0, CALM).on_ground
+
+
+def test_yaw_drifts_at_a_neutral_stick_and_not_on_the_floor() -> None:
+    p = replace(CALM, yaw_drift_radps=0.015)
+    s0 = _hovering(p)
+    s = _fly(s0, Sticks(gas_counts=hover_gas_counts(s0, p)), 3.0, p)
+    assert s.yaw_rate_radps == pytest.approx(0.015, rel=1e-3)
+    assert s.yaw_rad == pytest.approx(0.015 * (3.0 - p.attitude_tau_s), rel=0.02)
+    turning = _fly(s0, Sticks(yaw_counts=10, gas_counts=hover_gas_counts(s0, p)), 3.0, p)
+    assert turning.yaw_rate_radps == pytest.approx(-10 * p.yaw_rate_radps_per_count + 0.015)
+    landed = _fly(initial_state(p, np.random.default_rng(0)), Sticks(gas_counts=50), 3.0, p)
+    assert (landed.yaw_rad, landed.yaw_rate_radps) == (0.0, 0.0)
+
+
+def test_fixed_trims_and_biases_add_to_the_per_flight_draws() -> None:
+    fixed = replace(
+        VehicleParams(),
+        trim_rad=(0.01, -0.02),
+        acc_bias_mps2=(0.1, 0.0, -0.2),
+        pitch_trim_std_rad=0.0,
+        acc_bias_std_mps2=0.0,
+    )
+    e = initial_state(fixed, np.random.default_rng(5)).errors
+    assert e == FlightErrors(0.01, -0.02, (0.1, 0.0, -0.2))
+    drawn = replace(fixed, pitch_trim_std_rad=0.005, acc_bias_std_mps2=0.05)
+    errors = [initial_state(drawn, np.random.default_rng(k)).errors for k in range(400)]
+    trims = np.array([(x.pitch_trim_rad, x.roll_trim_rad) for x in errors])
+    biases = np.array([x.acc_bias_mps2 for x in errors])
+    assert trims.mean(axis=0) == pytest.approx([0.01, -0.02], abs=0.001)
+    assert trims.std(axis=0) == pytest.approx([0.005, 0.005], rel=0.15)
+    assert biases.mean(axis=0) == pytest.approx([0.1, 0.0, -0.2], abs=0.01)
+    assert biases.std(axis=0) == pytest.approx([0.05] * 3, rel=0.15)
+    # the vehicle flies command + trim, the FC reports true - trim: level reads level
+    s = _fly(replace(_hovering(fixed), errors=e), Sticks(gas_counts=104), 1.0, fixed)
+    assert (s.pitch_rad, s.roll_rad) == pytest.approx((0.01, -0.02), abs=1e-4)
+    m = imu_measured_si(
+        s, replace(fixed, angle_noise_std_rad=0.0, vibration_std_mps2=0.0), np.random.default_rng(0)
+    )
+    assert (m.pitch_rad, m.roll_rad) == pytest.approx((0.0, 0.0), abs=1e-4)
+
+
+def test_initial_charge_defaults_to_the_airframes() -> None:
+    p = replace(CALM, battery_used_ah=1.0)
+    assert initial_state(p, np.random.default_rng(0)).used_ah == 1.0
+    assert initial_state(p, np.random.default_rng(0), used_ah=0.5).used_ah == 0.5
+    s = initial_state(p, np.random.default_rng(0))
+    assert s.battery_v == pytest.approx(open_circuit_v(1.0, p) - 0.5 * p.battery_resistance_ohm)
+
+
+@pytest.mark.parametrize("ratio", [0.3, 0.8, 1.0])
+def test_vibration_on_z_is_its_ratio_of_x_and_y(ratio: float) -> None:
+    p = replace(VehicleParams(), vibration_std_mps2=0.3, vibration_z_ratio=ratio)
+    s = replace(_hovering(p), thrust_n=WEIGHT_N)
+    rng = np.random.default_rng(1)
+    samples = np.array([imu_measured_si(s, p, rng) for _ in range(4000)])
+    std = samples[:, 3:].std(axis=0)
+    assert std[0] == pytest.approx(0.3, rel=0.05)
+    assert std[1] == pytest.approx(0.3, rel=0.05)
+    assert std[2] == pytest.approx(0.3 * ratio, rel=0.05)
+    half = replace(s, thrust_n=0.5 * WEIGHT_N)  # scaled by thrust / weight, all three
+    std_half = np.array([imu_measured_si(half, p, rng) for _ in range(4000)])[:, 3:].std(axis=0)
+    assert std_half == pytest.approx(0.5 * std, rel=0.08)
+
+
+def test_the_rng_passed_to_step_changes_nothing() -> None:
+    """The vehicle draws nothing per step: its gusts are a function of (gust_seed, t)."""
+    p = replace(VehicleParams(), gust_accel_std_mps2=0.2)
+    s0 = initial_state(p, np.random.default_rng(0), pos_w_m=(0.0, 0.0, -1.0), gust_seed=4)
+    a = _fly(s0, Sticks(nick_counts=3, gas_counts=104), 2.0, p, seed=1)
+    b = _fly(s0, Sticks(nick_counts=3, gas_counts=104), 2.0, p, seed=2)
+    assert a == b
