@@ -66,7 +66,21 @@ def add_flight_commands(
         "'mk PATH' and 'laser PATH' and runs until SIGINT/SIGTERM or --duration. Fly it "
         "with 'mkflight fly --hover --mk-port PATH --laser-port PATH'.",
     )
-    sim.add_argument("--seed", dest="live_seed", type=int, metavar="N", help="random seed")
+    sim.add_argument(
+        "--seed",
+        dest="live_seed",
+        type=int,
+        metavar="N",
+        help="seeds this run: noise, gusts, the vehicle's errors (default sim.seed); with "
+        "--airframe random also the airframe, unless --set sim.seed=M picks it",
+    )
+    sim.add_argument(
+        "--airframe",
+        dest="live_airframe",
+        choices=("nominal", "random"),
+        help="the simulated airframe: 'nominal' (sim.vehicle) or 'random' (drawn from the "
+        "envelope with sim.seed); short for --set sim.airframe=...",
+    )
     sim.add_argument("--mk-link", metavar="PATH", help="a stable symlink to the FC's pty")
     sim.add_argument("--laser-link", metavar="PATH", help="a stable symlink to the URG's pty")
     sim.add_argument("--truth", metavar="FILE", help="write the ground truth (t x y z) here")
@@ -97,6 +111,7 @@ def add_flight_commands(
             exit_on_eof="exit_on_eof",
             faults_on_sigusr1="faults_on_sigusr1",
             seed="live_seed",
+            airframe="live_airframe",
             mk_link="mk_link",
             laser_link="laser_link",
             truth="truth",
@@ -117,7 +132,26 @@ def add_flight_commands(
         "and IV, flight.json, truth.txt) and prints the hover precision against truth.",
     )
     hover.add_argument("--duration", type=float, default=60.0, metavar="S", help="flight time")
-    hover.add_argument("--seed", type=int, metavar="N", help="random seed (default sim.seed)")
+    hover.add_argument(
+        "--seed",
+        type=int,
+        metavar="N",
+        help="seeds the flight: noise, gusts, the vehicle's errors (default sim.seed); with "
+        "--airframe random also the airframe, unless --set sim.seed=M picks it "
+        "(--airframe random --set sim.seed=3 --seed 1: airframe 3, flight 1)",
+    )
+    hover.add_argument(
+        "--airframe",
+        choices=("nominal", "random"),
+        help="the simulated airframe: 'nominal' (sim.vehicle) or 'random' (drawn from the "
+        "envelope with sim.seed); short for --set sim.airframe=...",
+    )
+    hover.add_argument(
+        "--scans",
+        action="store_true",
+        help="ray-cast URG scans in the room through the real scan matcher and hat "
+        "(slower) instead of the true pose plus noise",
+    )
     hover.add_argument("--height", type=float, metavar="M", help="hover height (default 0.6)")
     hover.add_argument("--log-dir", metavar="DIR", help="flight folder (default: new, dated)")
     hover.add_argument(
@@ -135,9 +169,67 @@ def add_flight_commands(
             duration_s="duration",
             excite_m="excite",
             seed="seed",
+            airframe="airframe",
+            scans="scans",
             height_m="height",
             log_dir="log_dir",
             as_json="json",
+            **config_args,
+        )
+    )
+    _add_sim_envelope(sim_commands, config_opts, command, config_args)
+
+
+def _add_sim_envelope(
+    sim_commands: Any,
+    config_opts: argparse.ArgumentParser,
+    command: Callable[..., Runner],
+    config_args: dict[str, str],
+) -> None:
+    """Add ``sim envelope`` (issue 17): the flight judged on N random airframes."""
+    envelope = sim_commands.add_parser(
+        "envelope",
+        parents=[config_opts],
+        help="fly N random airframes (hover, laser stall, tuned, oracle) and judge the flight",
+        description="For each of N random airframes (seeds S..S+N-1), in parallel processes, "
+        "in lock-step: a hover (take-off, hold, land), a second flight with the laser dead "
+        "from 10 s into the hold, a third with the config 'mkflight tune' makes from the "
+        "first, and the oracle (the same airframe and gusts flown on the true state with "
+        "searched gains). Reports truth std, touchdown speeds, ends and failsafes per "
+        "airframe, the pass rates, the worst five and summary statistics. Exit 0 when the "
+        "criteria hold (precision on >= 95 %, every touchdown <= 0.5 m/s, every stall "
+        "landed, the tuned config at least as good on >= 95 %), 1 when not.",
+    )
+    envelope.add_argument("--n", dest="env_n", type=int, default=50, metavar="N", help="airframes")
+    envelope.add_argument(
+        "--seed", dest="env_seed", type=int, default=1, metavar="S", help="first airframe seed"
+    )
+    envelope.add_argument(
+        "--jobs", dest="env_jobs", type=int, metavar="J", help="processes (default: CPUs)"
+    )
+    envelope.add_argument(
+        "--hold", dest="env_hold", type=float, default=60.0, metavar="S", help="hold time, s"
+    )
+    shown = envelope.add_mutually_exclusive_group()
+    shown.add_argument("--json", dest="env_json", action="store_true", help="one JSON object")
+    shown.add_argument(
+        "--markdown", action="store_true", help="the README's table (markdown) instead"
+    )
+    envelope.add_argument("--plot", dest="env_plot", metavar="DIR", help="write PNG figures here")
+    envelope.add_argument(
+        "--out", dest="env_out", metavar="DIR", help="keep the flight folders here (default: none)"
+    )
+    envelope.set_defaults(
+        func=command(
+            "mkflight.commands.sim_envelope:cmd_sim_envelope",
+            n="env_n",
+            seed="env_seed",
+            jobs="env_jobs",
+            hold_s="env_hold",
+            as_json="env_json",
+            markdown="markdown",
+            plot_dir="env_plot",
+            out_dir="env_out",
             **config_args,
         )
     )

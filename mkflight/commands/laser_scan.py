@@ -89,7 +89,6 @@ async def _port(port: str | None, sim: bool, cfg: Config) -> AsyncIterator[str]:
     scene = RoomScene(
         functools.partial(raycast, room),
         pose=ScenePose(x_m=0.0, y_m=0.0, yaw_rad=0.0, height_m=0.0),
-        laser=cfg.laser,
         seed=cfg.sim.seed,
     )
     async with UrgEmulator(scene) as emulator:

@@ -83,10 +83,11 @@ async def _port(port: str | None, sim: bool, cfg: Config) -> AsyncIterator[str]:
         assert port is not None
         yield port
         return
+    from mkflight.sim.airframe import airframe_from_config
     from mkflight.sim.fc_server import FcEmulator
     from mkflight.sim.sources import RestingVehicleSource
 
-    source = RestingVehicleSource(MkCalibration.from_config(cfg.mk), seed=cfg.sim.seed)
+    source = RestingVehicleSource(airframe_from_config(cfg.sim), seed=cfg.sim.seed)
     async with FcEmulator(cfg.sim.fc, source) as emulator:
         yield emulator.path
 

@@ -22,11 +22,27 @@ if TYPE_CHECKING:
     from mkflight.sim.live import Fault
 
 
+def airframe_overrides(overrides: list[str], airframe: str | None, seed: int | None) -> list[str]:
+    """``overrides`` plus what ``--airframe`` means: ``sim.airframe``, and maybe ``sim.seed``.
+
+    ``--airframe random --seed N`` flies airframe N (``sim.seed=N``) unless a ``--set
+    sim.seed=M`` already picks the airframe; ``--seed`` alone seeds only the flight.
+    """
+    if airframe is None:
+        return list(overrides)
+    out = [*overrides, f"sim.airframe={airframe}"]
+    picked = any(o.replace(" ", "").startswith("sim.seed=") for o in overrides)
+    if airframe == "random" and seed is not None and not picked:
+        out.append(f"sim.seed={seed}")
+    return out
+
+
 def cmd_sim(
     *,
     config_path: str | None,
     overrides: list[str],
     seed: int | None,
+    airframe: str | None = None,
     mk_link: str | None,
     laser_link: str | None,
     truth: str | None,
@@ -37,6 +53,8 @@ def cmd_sim(
 ) -> int:
     """Run the live simulator (:class:`~mkflight.sim.live.LiveSim`) until stopped.
 
+    ``airframe``: ``--airframe`` (:func:`airframe_overrides`).
+
     Raises:
         ConfigError: a bad config, fault string or duration; the truth file exists.
     """
@@ -44,7 +62,7 @@ def cmd_sim(
 
     from mkflight.sim.live import parse_faults
 
-    cfg = load_config(config_path, overrides)
+    cfg = load_config(config_path, airframe_overrides(overrides, airframe, seed))
     schedule = parse_faults(faults)
     if duration_s is not None and not (math.isfinite(duration_s) and duration_s > 0):
         msg = f"--duration must be a finite number of seconds > 0, got {duration_s}"

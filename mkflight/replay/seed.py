@@ -43,9 +43,9 @@ from mkflight.scanmatch.geometry import Pose
 from mkflight.sim.fc import FcModel
 from mkflight.sim.fc_answers import build_debug_out
 from mkflight.sim.room import room_caster
-from mkflight.sim.sources import RestingVehicleSource
+from mkflight.sim.sources import FixedSource
 from mkflight.sim.urg import UrgModel
-from mkflight.sim.urg_scene import RoomScene, ScenePose
+from mkflight.sim.urg_scene import HatGeometry, RoomScene, ScenePose
 from mkflight.sim.urg_server import USB_DELAY_S
 from mkflight.sim.world import default_room
 
@@ -82,11 +82,17 @@ class SeedFc(FcModel):
         on_end: Callable[[int], None],
     ) -> None:
         cal = MkCalibration.from_config(cfg.mk)
-        super().__init__(
-            cfg.sim.fc,
-            RestingVehicleSource(cal, seed=0, battery_v=cfg.sim.fc.battery_v, noise=False),
-            t_ns=t_ns,
+        resting = analog_from_si(  # level on the floor, in the recorded flight's own units
+            pitch_rad=0.0,
+            roll_rad=0.0,
+            yaw_rad=0.0,
+            acc_x_mps2=0.0,
+            acc_y_mps2=0.0,
+            acc_z_mps2=-cal.g_mps2,
+            battery_v=cfg.sim.fc.battery_v,
+            cal=cal,
         )
+        super().__init__(cfg.sim.fc, FixedSource(resting), t_ns=t_ns)
         self._cal = cal
         self._imu = imu
         self._clock = clock
@@ -141,7 +147,9 @@ def seed_scene(cfg: Config, laser: npt.NDArray[np.void], clock: SeedClock) -> Ro
             height_m=height,
         )
 
-    return RoomScene(room_caster(default_room()), pose=pose_at, laser=cfg.laser, seed=0)
+    # The recorded flight's own hat (cfg.laser): a replay re-creates what it flew with.
+    hat = HatGeometry(cfg.laser.hat_steps, cfg.laser.scan_steps[0] - 1, cfg.laser.hat_offset_m)
+    return RoomScene(room_caster(default_room()), pose=pose_at, hat=hat, seed=0)
 
 
 def seed_urg(cfg: Config, laser: npt.NDArray[np.void], clock: SeedClock, t_ns: int) -> UrgModel:

@@ -15,10 +15,14 @@ last byte has left, ``len*10/57600`` s after it started (§1). Both directions r
 speed: what the host writes arrives byte by byte (:class:`~mkflight.sim.fc_uart.HostLine`)
 and the receiver rules apply at each byte's arrival time; a frame whose last byte arrives
 is handled at the first tick after it (a byte arriving exactly on a tick comes after it).
+A subscribed DebugOut is due 52 ticks after the last one; an airframe's busy main loop
+(:class:`~mkflight.sim.fc_timing.DebugTiming`, seeded) sends some a few ticks, or 5-25
+ms, later than due, and the period counts from when it really left.
 
 Parts live beside it: :mod:`~mkflight.sim.fc_uart` (the FC's receiver rules, wire
-timing), :mod:`~mkflight.sim.fc_control` (pilot sticks, ExternControl, the hold counter)
-and :mod:`~mkflight.sim.fc_answers` (frame contents). Written from ``mk-serial.md``; no
+timing), :mod:`~mkflight.sim.fc_control` (pilot sticks, ExternControl, the hold counter),
+:mod:`~mkflight.sim.fc_timing` (DebugOut jitter) and :mod:`~mkflight.sim.fc_answers`
+(frame contents). Written from ``mk-serial.md``; no
 firmware code is reproduced.
 """
 
@@ -43,9 +47,10 @@ from mkflight.mk.messages import (
 )
 from mkflight.sim.fc_answers import DEFAULT_STATUS, build_debug_out, mk3mag_frame, parse_version
 from mkflight.sim.fc_control import FcCommand, FcControls
+from mkflight.sim.fc_timing import TICK_NS as TICK_NS  # one FC tick (re-exported)
+from mkflight.sim.fc_timing import DebugJitter, DebugTiming
 from mkflight.sim.fc_uart import FcReceiver, FcTransmitter, HostLine, UartCounters, WireChunk
 
-TICK_NS: Final = 1_024_000  # one FC tick, 20 MHz / 8 / 256 / 10 (§7.1)
 DELAY_OVERSHOOT_TICKS: Final = 2  # an FC delay of t ticks expires after t+1 or t+2 (§7.1)
 SUBSCRIPTION_TICKS: Final = 4000  # 'd' expires 4000 ticks after the last renewal (§7.2)
 MK3MAG_PERIOD_TICKS: Final = 99  # the unsolicited '#dk' frame (§7.6)
@@ -78,8 +83,17 @@ class FcModel(UartCounters):
     docstring for the time model.
     """
 
-    def __init__(self, settings: SimFcConfig, source: AnalogSource, *, t_ns: int = 0) -> None:
+    def __init__(
+        self,
+        settings: SimFcConfig,
+        source: AnalogSource,
+        *,
+        t_ns: int = 0,
+        timing: DebugTiming | None = None,
+    ) -> None:
+        """Boot at ``t_ns``; ``timing``: the airframe's DebugOut jitter (default: exact)."""
         self.settings = settings
+        self.debug_jitter = DebugJitter(timing if timing is not None else DebugTiming())
         self.source = source
         self.version = parse_version(settings.version)
         self.hardware_error = bytes(5)
@@ -311,7 +325,8 @@ class FcModel(UartCounters):
             self.tx.emit(t_ns, mk3mag_frame(self.source.analog(t_ns, self)), "k")
         elif self._want_debug or (self._debug_period_ticks and k >= self._debug_due_tick):
             self._want_debug = False
-            self._debug_due_tick = k + self._debug_period_ticks + DELAY_OVERSHOOT_TICKS
+            extra = self.debug_jitter.extra_ticks()  # the FC's loop was busy (fc_timing)
+            self._debug_due_tick = k + self._debug_period_ticks + DELAY_OVERSHOOT_TICKS + extra
             self.tx.emit(t_ns, self.debug_out(t_ns).encode(), "D")
         elif self._want_label is not None:
             index, self._want_label = self._want_label, None

@@ -8,26 +8,32 @@
   ExternControl it receives is what the vehicle flies;
 * a URG-04LX emulator (:class:`~mkflight.sim.urg_server.UrgEmulator`) whose
   :class:`~mkflight.sim.urg_scene.RoomScene` ray-casts the room from the vehicle's pose
-  at each beam's time, and folds the hat beams down to the floor.
+  at each beam's time, and folds the airframe's hat beams down to the floor.
+
+Both links time like the airframe's (:func:`~mkflight.sim.airframe.airframe_from_config`
+of ``cfg.sim``): the FC's DebugOut with its loop's jitter and late frames, the URG's
+replies after the sensor's own USB delay (:data:`~mkflight.sim.urg_server.USB_DELAY_S`)
+plus ``laser_extra_delay_s`` (data older than the driver's configured
+``transport_delay_s`` assumes) and a jitter up to ``laser_jitter_s``. Nothing of ``mk``,
+``control`` or ``laser`` is read.
 
 The room is :func:`~mkflight.sim.world.default_room` unless one is given.
 
-Faults (:class:`Fault`, parsed from ``KIND@T[:ARG]``; ``KIND:ARG@T`` is accepted too)
-fire ``T`` seconds after :meth:`LiveSim.start` through the emulators' own fault methods
-(:data:`FAULT_KINDS` lists them and their arguments). The FC's and the URG's vanish and
-replug faults need a stable path: if one is scheduled and no link was given, the link
-is made in a temporary directory.
+Faults (:class:`~mkflight.sim.live_faults.Fault`, parsed from ``KIND@T[:ARG]`` by
+:mod:`mkflight.sim.live_faults`; ``KIND:ARG@T`` is accepted too) fire ``T`` seconds
+after :meth:`LiveSim.start` through the emulators' own fault methods (:data:`FAULT_KINDS`
+lists them and their arguments). The FC's and the URG's vanish and replug faults need a
+stable path: if one is scheduled and no link was given, the link is made in a temporary
+directory.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import math
 import tempfile
 import time
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Final, Self, TypeVar
 
@@ -36,128 +42,20 @@ import structlog
 
 from mkflight.config import Config, SimFcConfig
 from mkflight.errors import ConfigError
-from mkflight.sim.fc import DEFAULT_BOOT_NS
 from mkflight.sim.fc_server import FcEmulator
+from mkflight.sim.live_faults import FAULT_KINDS as FAULT_KINDS
+from mkflight.sim.live_faults import Fault as Fault
+from mkflight.sim.live_faults import parse_fault as parse_fault
+from mkflight.sim.live_faults import parse_faults as parse_faults
 from mkflight.sim.room import Room, room_caster
-from mkflight.sim.urg_scene import RoomScene
-from mkflight.sim.urg_server import UrgEmulator
+from mkflight.sim.urg_scene import HatGeometry, RoomScene
+from mkflight.sim.urg_server import USB_DELAY_S, UrgEmulator
 from mkflight.sim.world import SimWorld, WorldFc, default_room
 
 log = structlog.get_logger("mkflight.sim")
 T = TypeVar("T")
 
 CRASH_CHECK_S: Final = 0.5  # how often :meth:`LiveSim.serve` looks for a crashed task
-
-
-@dataclass(frozen=True, slots=True)
-class FaultKind:
-    """One fault kind: its argument's name and type, and whether it must be given."""
-
-    arg_name: str | None = None
-    integer: bool = False
-    required: bool = True
-    default: float | None = None
-
-    def usage(self, kind: str) -> str:
-        """``kind``, ``kind:ARG`` or ``kind[:ARG]``."""
-        if self.arg_name is None:
-            return kind
-        return f"{kind}:{self.arg_name}" if self.required else f"{kind}[:{self.arg_name}]"
-
-
-FAULT_KINDS: Final[dict[str, FaultKind]] = {
-    "fc-vanish": FaultKind(),  # the FC's USB adapter is pulled
-    "fc-replug": FaultKind(),  # ... and plugged back in
-    "fc-silent": FaultKind("DUR_S"),  # the FC's TX line is dead for DUR_S
-    "fc-reboot": FaultKind("BOOT_S", required=False, default=DEFAULT_BOOT_NS / 1e9),
-    "fc-garbage": FaultKind("NBYTES", integer=True),  # random bytes before the next frame
-    "fc-corrupt": FaultKind("NFRAMES", integer=True),  # the next frames with a bad CRC
-    "laser-vanish": FaultKind(),
-    "laser-replug": FaultKind(),  # a USB-powered URG restarts (SCIP 1.1, timer 0)
-    "laser-stall": FaultKind("DUR_S"),  # no scans for DUR_S, commands still answered
-    "laser-garbage": FaultKind("NBYTES", integer=True),  # random bytes and a LF
-    "laser-badsum": FaultKind("NSCANS", integer=True),  # the next replies with a bad sum
-    "battery": FaultKind("VOLTS"),  # the FC reads VOLTS from then on
-    "pilot-nick": FaultKind("COUNTS", integer=True),  # the pilot moves the nick stick
-}
-_FORMAT: Final = "KIND@T[:ARG] (T: seconds after the start)"
-
-
-def _valid_kinds() -> str:
-    return ", ".join(spec.usage(kind) for kind, spec in FAULT_KINDS.items())
-
-
-@dataclass(frozen=True, slots=True)
-class Fault:
-    """A fault to inject ``at_s`` seconds after the start; ``arg`` as :data:`FAULT_KINDS`."""
-
-    at_s: float
-    kind: str
-    arg: float | None = None
-
-    def __str__(self) -> str:
-        """The canonical ``KIND@T[:ARG]`` text."""
-        if self.arg is None:
-            return f"{self.kind}@{self.at_s:g}"
-        return f"{self.kind}@{self.at_s:g}:{self.arg:g}"
-
-
-def parse_fault(text: str) -> Fault:
-    """Parse ``KIND@T[:ARG]`` (or ``KIND:ARG@T``): e.g. ``laser-stall@5:1.5``.
-
-    Raises:
-        ConfigError: not that form, an unknown kind, a missing, extra or out-of-range
-            argument, or a negative or non-finite time; names the string and the valid
-            kinds.
-    """
-    result = _parse(text)
-    if isinstance(result, str):
-        msg = f"fault {text!r}: {result}; format {_FORMAT}, kinds: {_valid_kinds()}"
-        raise ConfigError(msg)
-    return result
-
-
-def _parse(text: str) -> Fault | str:
-    """The fault, or what is wrong with ``text``."""
-    left, at, right = text.strip().partition("@")
-    if not at:
-        return "no '@T'"
-    kind, _, arg_left = left.partition(":")
-    t_text, _, arg_right = right.partition(":")
-    if arg_left and arg_right:
-        return "two arguments"
-    spec = FAULT_KINDS.get(kind)
-    if spec is None:
-        return f"unknown kind {kind!r}"
-    try:
-        at_s = float(t_text)
-    except ValueError:
-        return f"time {t_text!r} is not a number"
-    if not (math.isfinite(at_s) and at_s >= 0.0):
-        return f"time {t_text!r} must be finite and >= 0"
-    arg_text = arg_left or arg_right
-    if spec.arg_name is None:
-        return f"{kind} takes no argument" if arg_text else Fault(at_s, kind)
-    if not arg_text:
-        return f"{kind} needs {spec.arg_name}" if spec.required else Fault(at_s, kind, spec.default)
-    try:
-        arg = float(int(arg_text)) if spec.integer else float(arg_text)
-    except ValueError:
-        return f"{spec.arg_name} {arg_text!r} is not {'an integer' if spec.integer else 'a number'}"
-    zero_ok = spec.arg_name == "VOLTS"
-    if not math.isfinite(arg) or arg < 0.0 or (arg == 0.0 and not zero_ok):
-        return f"{spec.arg_name} {arg_text!r} must be finite and {'>=' if zero_ok else '>'} 0"
-    return Fault(at_s, kind, arg)
-
-
-def parse_faults(items: Iterable[Fault | str]) -> list[Fault]:
-    """Parse every string (see :func:`parse_fault`); all ordered by time (stable).
-
-    Raises:
-        ConfigError: the first bad string.
-    """
-    faults = (f if isinstance(f, Fault) else parse_fault(f) for f in items)
-    return sorted(faults, key=lambda f: f.at_s)
 
 
 class _WorldFcEmulator(FcEmulator):
@@ -192,9 +90,10 @@ class LiveSim:
         """Check the fault schedule; nothing runs before :meth:`start`.
 
         Args:
-            cfg: the configuration (``sim``, ``mk``, ``laser``).
-            seed: seeds the vehicle, the sensor noise and the garbage (default
-                ``sim.seed``).
+            cfg: the configuration (``sim`` only: the airframe and the FC's settings).
+            seed: seeds this flight: the vehicle's errors and gusts, the sensor noise,
+                the links' jitter and the garbage (default ``sim.seed``; a random
+                airframe is drawn with ``sim.seed``).
             mk_link: a stable symlink to the FC's pty, else none.
             laser_link: a stable symlink to the URG's pty, else none.
             truth_path: write the truth log there (a new file).
@@ -271,10 +170,21 @@ class LiveSim:
             msg = f"cannot create the truth log {str(self._truth_path)!r}: {err.strerror or err}"
             raise ConfigError(msg) from err
         self._fc = _WorldFcEmulator(self.cfg.sim.fc, self._world, link=self._links["fc"])
+        params = self._world.params
         scene = RoomScene(
-            room_caster(self.room), pose=self._world.pose_at, laser=self.cfg.laser, seed=self.seed
+            room_caster(self.room),
+            pose=self._world.pose_at,
+            hat=HatGeometry.of(params),
+            seed=self.seed,
         )
-        self._urg = UrgEmulator(scene, link=self._links["laser"], name="urg")
+        self._urg = UrgEmulator(
+            scene,
+            link=self._links["laser"],
+            name="urg",
+            usb_delay_s=USB_DELAY_S + params.laser_extra_delay_s,  # older than assumed
+            usb_jitter_s=params.laser_jitter_s,
+            seed=self.seed,
+        )
         try:
             await self._fc.start()
             await self._urg.start()

@@ -1,9 +1,11 @@
 """Where the emulated FlightCtrl's DebugOut values come from (``mk-serial.md`` §6).
 
 Each class here satisfies :class:`mkflight.sim.fc.AnalogSource`: the FC model asks it for
-raw s16 values by index whenever it builds a DebugOut or an MK3MAG frame. The vehicle
-model of the simulator (SPEC §8) will be one more source; these two cover the protocol
-tests (a fixed table, e.g. the values of vectors MK-07/MK-08) and a vehicle standing still.
+raw s16 values by index whenever it builds a DebugOut or an MK3MAG frame. The flying
+vehicle of the simulator is :class:`mkflight.sim.world.SimWorld`; these two cover the
+protocol tests (a fixed table, e.g. the values of vectors MK-07/MK-08) and a vehicle
+standing still (``mk info --sim``). Counts come from the simulator's own encoder
+(:func:`mkflight.sim.mk_units.encode_analog`), never the flight's calibration.
 """
 
 from __future__ import annotations
@@ -22,7 +24,10 @@ from mkflight.mk.messages import (
     ANALOG_COUNT,
     ANALOG_GYRO_COMPASS,
 )
-from mkflight.mk.units import INT16_MAX, INT16_MIN, MkCalibration, analog_from_si
+from mkflight.mk.units import INT16_MAX, INT16_MIN
+from mkflight.sim.mk_units import encode_analog
+from mkflight.sim.vehicle import VehicleParams
+from mkflight.sim.vehicle_sensors import ImuSi
 
 if TYPE_CHECKING:
     from mkflight.sim.fc import FcModel
@@ -67,14 +72,15 @@ class RestingVehicleSource:
     """A vehicle standing still at a fixed attitude, with small seeded sensor noise.
 
     At rest the accelerometers measure the specific force
-    f = (g sin θ, -g sin φ cos θ, -g cos φ cos θ) (SPEC §1), converted to counts by
-    :func:`mkflight.mk.units.analog_from_si`. The noise comes from ``random.Random(seed)``,
-    so the sequence of samples is the same for the same seed and the same calls.
+    f = (g sin θ, -g sin φ cos θ, -g cos φ cos θ) (SPEC §1), converted to counts by the
+    simulator's :func:`~mkflight.sim.mk_units.encode_analog` with the airframe ``params``'
+    accelerometer scales. The noise comes from ``random.Random(seed)``, so the sequence
+    of samples is the same for the same seed and the same calls.
     """
 
     def __init__(
         self,
-        cal: MkCalibration,
+        params: VehicleParams,
         seed: int,
         *,
         pitch_rad: float = 0.0,
@@ -97,19 +103,18 @@ class RestingVehicleSource:
             if not math.isfinite(value):
                 msg = f"RestingVehicleSource.{name} must be finite, got {value}"
                 raise ValueError(msg)
-        g = cal.g_mps2
+        g = params.g_mps2
         self.noise = noise
         self._rng = random.Random(seed)
-        self.base_counts: dict[int, int] = analog_from_si(
-            pitch_rad=pitch_rad,
-            roll_rad=roll_rad,
-            yaw_rad=yaw_rad,
-            acc_x_mps2=g * math.sin(pitch_rad),
-            acc_y_mps2=-g * math.sin(roll_rad) * math.cos(pitch_rad),
-            acc_z_mps2=-g * math.cos(roll_rad) * math.cos(pitch_rad),
-            battery_v=battery_v,
-            cal=cal,
+        at_rest = ImuSi(
+            pitch_rad,
+            roll_rad,
+            yaw_rad,
+            g * math.sin(pitch_rad),
+            -g * math.sin(roll_rad) * math.cos(pitch_rad),
+            -g * math.cos(roll_rad) * math.cos(pitch_rad),
         )
+        self.base_counts: dict[int, int] = encode_analog(at_rest, battery_v, params)
 
     def analog(self, t_ns: int, fc: FcModel) -> Mapping[int, int]:
         """The resting counts, plus ±2 counts on accelerations and ±1 on angles."""

@@ -17,7 +17,9 @@ What is modelled (§3.2-3.3):
   timestamp for a full scan (step 725). ``interval`` skips scans, ``count`` counts down
   in the echo and ends the stream with the laser off.
 - Other commands are answered at once. Any reply reaches the host ``delivery_delay_ns``
-  after it left (the USB transfer; 0 here, the server sets it), in order.
+  after it left (the USB transfer; 0 here, the server sets it) plus a jitter uniform in
+  ``0..delivery_jitter_ns`` drawn per reply (seeded), in order: a reply never overtakes
+  the one before it.
 - A URG-04LX starts in SCIP 1.1 and answers only ``SCIP2.0`` (with a bare ``0``) until
   switched; every other command gets the 1.1 refusal ``echo LF E LF LF`` (not a SCIP 2.0
   reply: the client counts it as garbage). A UG01 starts in SCIP 2.0 (``scip1=False``).
@@ -25,8 +27,9 @@ What is modelled (§3.2-3.3):
   is refused with ``0E`` (§6 item 4, §8).
 
 Not modelled: the RS-232 wire time and bit rates (``SS``), motor speed changes (``CR``),
-``HS``/``DB``; scan timing jitter. A second GD while one is pending gets ``0B``; a new
-MD/MS (even the same one) replaces the running stream (§3.2, §8).
+``HS``/``DB``; jitter of the mirror itself (only the USB side jitters). A second GD while
+one is pending gets ``0B``; a new MD/MS (even the same one) replaces the running stream
+(§3.2, §8).
 """
 
 from __future__ import annotations
@@ -97,6 +100,8 @@ class UrgModel:
         laser_on: bool = False,
         identity: UrgIdentity | None = None,
         delivery_delay_ns: int = 0,
+        delivery_jitter_ns: int = 0,
+        seed: int = 0,
     ) -> None:
         """Power the sensor up at ``t_ns``: a scan starts then, the timer reads ``timer_ms``.
 
@@ -108,12 +113,16 @@ class UrgModel:
             laser_on: the laser is on at the start.
             identity: the VV/PP/II texts and parameters (default: a URG-04LX).
             delivery_delay_ns: how long every reply takes to reach the host.
+            delivery_jitter_ns: plus a per-reply jitter, uniform in 0..this (USB).
+            seed: seeds the jitter draws (reproducible).
         """
         self.source = source
         self.identity = identity if identity is not None else UrgIdentity()
         self.params = self.identity.params
         self.starts_in_scip1 = scip1
         self.delivery_delay_ns = delivery_delay_ns
+        self.delivery_jitter_ns = delivery_jitter_ns
+        self._jitter_rng = np.random.default_rng([seed, 30])
         self._outbox: deque[tuple[int, bytes]] = deque()
         self._last_delivery_ns = t_ns
         self._garbage = b""
@@ -349,7 +358,10 @@ class UrgModel:
             self.tx_corrupted += 1
             reply = corrupt_last_sum(reply)
         chunk, self._garbage = self._garbage + reply, b""
-        deliver = max(ready_ns + self.delivery_delay_ns, self._last_delivery_ns)
+        delay = self.delivery_delay_ns
+        if self.delivery_jitter_ns > 0:
+            delay += int(self._jitter_rng.integers(0, self.delivery_jitter_ns + 1))
+        deliver = max(ready_ns + delay, self._last_delivery_ns)
         self._last_delivery_ns = deliver
         self._outbox.append((deliver, chunk))
 

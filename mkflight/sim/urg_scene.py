@@ -3,18 +3,24 @@
 Both satisfy :class:`mkflight.sim.urg.RangeSource`. :class:`RoomScene` is what the
 simulator uses (SPEC §8, data README ``shared/data/laser/README.md``):
 
-- **scan steps** (``laser.scan_steps``, default 150-725): each beam is ray-cast in the
-  room from the pose at the time its group of steps is measured (the sweep takes 70 ms,
-  so a moving vehicle smears the scan), tilted with roll and pitch; 1 cm Gaussian noise,
-  rounded to mm; no hit or beyond DMAX -> 0; a small fraction replaced by error codes
-  1, 2 or 7.
-- **hat steps** (``laser.hat_steps``, default 44-127): the mirror folds them down to the
-  floor. We model the folded beams as leaving straight down along the body's z axis from
-  a point ``hat_offset_m`` above the floor contact, so the slant range is
+The hat is the simulated airframe's own (:class:`HatGeometry`, from
+:class:`~mkflight.sim.vehicle.VehicleParams`: ``hat_steps``, ``mirror_edge_last_step``,
+``hat_offset_m``), never the flight code's ``laser`` section: the flight's idea of its hat
+is checked against it, not copied from it.
+
+- **hat steps** (default 44-127): the mirror folds them down to the floor. We model the
+  folded beams as leaving straight down along the body's z axis from a point
+  ``hat_offset_m`` above the floor contact, so the slant range is
   ``(height_m + hat_offset_m) / (cos(pitch) * cos(roll))`` + noise: SPEC eq 26 inverted
   exactly, which the hat estimator turns back into ``height_m``.
-- **mirror edge** (the remaining measured steps, default 128-149): half read 0, half junk
-  of 30-80 mm (valid-looking, as in the synthetic data sets).
+- **mirror edge** (the steps after the hat up to ``mirror_edge_last_step``, default
+  128-149): half read 0, half junk of 30-80 mm (valid-looking, as in the synthetic data
+  sets).
+- **scan steps** (every other step, default 150-725): each beam is ray-cast in the room
+  from the pose at the time its group of steps is measured (the sweep takes 70 ms, so a
+  moving vehicle smears the scan), tilted with roll and pitch; 1 cm Gaussian noise,
+  rounded to mm; no hit or beyond DMAX -> 0; a small fraction replaced by error codes 1,
+  2 or 7.
 
 Frames: the pose is in mkflight's world frame W (SPEC §1: x forward, y right, yaw
 clockwise, height up). The room is in standard 2-D math (x, y, angles counter-clockwise),
@@ -35,7 +41,7 @@ from typing import Final, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from mkflight.config import LaserConfig
+from mkflight.sim.vehicle import VehicleParams
 from mkflight.urg.units import URG_04LX, SensorParams
 
 FloatArray = npt.NDArray[np.float64]
@@ -76,6 +82,28 @@ class ScenePose:
 PoseSource = ScenePose | Callable[[int], ScenePose]
 
 
+@dataclass(frozen=True, slots=True)
+class HatGeometry:
+    """Which URG steps the hat's mirror folds to the floor, and its offset (the airframe's).
+
+    ``hat_steps`` (inclusive) read the floor; the steps after them up to
+    ``mirror_edge_last_step`` see the mirror's edge; ``hat_offset_m`` is the hat's range
+    to the floor minus the height (the range of a vehicle standing on the floor).
+    """
+
+    hat_steps: tuple[int, int]
+    mirror_edge_last_step: int
+    hat_offset_m: float
+
+    @classmethod
+    def of(cls, params: VehicleParams) -> HatGeometry:
+        """The hat of the airframe ``params``."""
+        return cls(params.hat_steps, params.mirror_edge_last_step, params.hat_offset_m)
+
+
+NOMINAL_HAT: Final = HatGeometry.of(VehicleParams())
+
+
 class FixedRanges:
     """The same ranges in every scan: ``{step: mm}``, ``default_mm`` elsewhere (§7)."""
 
@@ -98,7 +126,7 @@ class RoomScene:
         caster: RayCaster,
         *,
         pose: PoseSource | None = None,
-        laser: LaserConfig | None = None,
+        hat: HatGeometry = NOMINAL_HAT,
         params: SensorParams = URG_04LX,
         seed: int = 0,
         noise_m: float = NOISE_M,
@@ -111,7 +139,7 @@ class RoomScene:
             caster: the room's ray caster.
             pose: a fixed :class:`ScenePose` or a function of time giving one; may be
                 reassigned at any time through :attr:`pose`.
-            laser: which steps are hat and scan steps, and the hat offset.
+            hat: the airframe's hat: its steps, the mirror's edge, its offset.
             params: the sensor's parameters (DMAX, angles, timing).
             seed: seeds the noise generator (reproducible scans).
             noise_m: 1-sigma range noise.
@@ -121,7 +149,7 @@ class RoomScene:
         """
         self.caster = caster
         self.pose: PoseSource = pose if pose is not None else ScenePose()
-        self.laser = laser if laser is not None else LaserConfig()
+        self.hat = hat
         self.params = params
         self.rng = np.random.default_rng(seed)
         self.noise_m = noise_m
@@ -137,11 +165,10 @@ class RoomScene:
         """Hat, mirror-edge and scan steps of one scan starting at ``t_ns`` (mm)."""
         steps = np.asarray(steps, dtype=np.int64)
         out = np.zeros(steps.shape, dtype=np.int64)
-        hat_lo, hat_hi = self.laser.hat_steps
-        scan_lo, scan_hi = self.laser.scan_steps
+        hat_lo, hat_hi = self.hat.hat_steps
         hat = (steps >= hat_lo) & (steps <= hat_hi)
-        scan = (steps >= scan_lo) & (steps <= scan_hi) & ~hat
-        edge = ~hat & ~scan
+        edge = (steps > hat_hi) & (steps <= self.hat.mirror_edge_last_step)
+        scan = ~hat & ~edge
         if hat.any():
             out[hat] = self._hat(t_ns, steps[hat])
         if scan.any():
@@ -166,7 +193,7 @@ class RoomScene:
         """The floor distance through the hat's mirror: SPEC eq 26 inverted."""
         pose = self.pose_at(self._step_time_ns(t_ns, float(steps.mean())))
         tilt = math.cos(pose.pitch_rad) * math.cos(pose.roll_rad)
-        slant = (pose.height_m + self.laser.hat_offset_m) / tilt if tilt > 0 else math.nan
+        slant = (pose.height_m + self.hat.hat_offset_m) / tilt if tilt > 0 else math.nan
         return self._to_mm(np.full(steps.shape, slant, dtype=np.float64))
 
     def _scan(self, t_ns: int, steps: IntArray) -> IntArray:
@@ -200,6 +227,6 @@ class RoomScene:
         flat = self.caster(pose.x_m, -pose.y_m, -pose.yaw_rad, -azimuth, max_m)
         with np.errstate(divide="ignore", invalid="ignore"):
             wall = np.asarray(flat, dtype=np.float64) / horizontal
-            floor = np.where(lz > 1e-9, (pose.height_m + self.laser.hat_offset_m) / lz, np.inf)
+            floor = np.where(lz > 1e-9, (pose.height_m + self.hat.hat_offset_m) / lz, np.inf)
         slant = np.fmin(np.nan_to_num(wall, nan=np.inf), floor)
         return np.where(slant <= max_m, slant, np.nan)

@@ -9,9 +9,13 @@ stamped with ``time.monotonic_ns``, no periodic tick; ``wait_for``; crash surfac
 faults through.
 
 Timing: a full scan leaves the sensor 70.8 ms after its timestamp (step 0, §3.3); the
-USB transfer then takes ``usb_delay_s`` (default 30 ms; the model's
-``delivery_delay_ns``), so a scan reaches the client about 100 ms after its step 0, as
-SPEC §2/§8 ask.
+USB transfer then takes ``usb_delay_s`` (default :data:`USB_DELAY_S`, 30 ms: the
+simulator's own figure for this sensor, not the driver's configured
+``transport_delay_s``) plus a per-reply jitter uniform in ``0..usb_jitter_s`` (seeded;
+the model's ``delivery_delay_ns`` and ``delivery_jitter_ns``), so a scan reaches the
+client about 100 ms after its step 0, as SPEC §2/§8 ask. The live simulator adds its
+airframe's ``laser_extra_delay_s`` (a laser whose data is older than the driver assumes)
+and ``laser_jitter_s``.
 
 Faults: :meth:`UrgEmulator.vanish`/:meth:`UrgEmulator.replug` pull and reinsert the USB
 cable (the UG01 is USB-powered, so by default it restarts on replug: SCIP 1.1, timer 0);
@@ -32,7 +36,7 @@ from mkflight.sim.pty_server import PtyEmulator
 from mkflight.sim.urg import RangeSource, UrgModel
 from mkflight.sim.urg_answers import UrgIdentity
 
-USB_DELAY_S: Final = 0.03
+USB_DELAY_S: Final = 0.03  # the URG-04LX's USB transfer of a reply (the sensor's fact)
 
 
 class UrgEmulator(PtyEmulator[UrgModel]):
@@ -48,6 +52,8 @@ class UrgEmulator(PtyEmulator[UrgModel]):
         timer_ms: int = 0,
         identity: UrgIdentity | None = None,
         usb_delay_s: float = USB_DELAY_S,
+        usb_jitter_s: float = 0.0,
+        seed: int = 0,
     ) -> None:
         """Prepare the emulator; nothing runs before :meth:`start`.
 
@@ -59,6 +65,8 @@ class UrgEmulator(PtyEmulator[UrgModel]):
             timer_ms: the sensor's millisecond timer at start.
             identity: the VV/PP/II texts and parameters (default: a URG-04LX).
             usb_delay_s: how long each reply takes from the sensor to the client.
+            usb_jitter_s: plus a jitter per reply, uniform in 0..this (seeded).
+            seed: seeds the jitter.
         """
         super().__init__(link=link, name=name)
         self._source = source
@@ -66,6 +74,8 @@ class UrgEmulator(PtyEmulator[UrgModel]):
         self._timer_ms = timer_ms
         self._identity = identity
         self._usb_delay_s = usb_delay_s
+        self._usb_jitter_s = usb_jitter_s
+        self._seed = seed
 
     def _new_model(self, t_ns: int) -> UrgModel:
         """The sensor, powered up at ``t_ns``, its replies delayed by the USB transfer."""
@@ -76,6 +86,8 @@ class UrgEmulator(PtyEmulator[UrgModel]):
             scip1=self._scip1,
             identity=self._identity,
             delivery_delay_ns=round(self._usb_delay_s * 1e9),
+            delivery_jitter_ns=round(self._usb_jitter_s * 1e9),
+            seed=self._seed,
         )
 
     # ----------------------------------------------------------------- faults and knobs

@@ -6,12 +6,22 @@ pure and synchronous; the emulators' tasks drive it by asking for what they meas
 
 * the FC emulator's DebugOut (:meth:`SimWorld.analog`, an
   :class:`~mkflight.sim.fc.AnalogSource`): the IMU measured from the vehicle (trim,
-  biases, vibration, noise: :mod:`mkflight.sim.vehicle_sensors`) in MK counts, as
-  ``sim hover`` does;
+  biases, vibration, noise: :mod:`mkflight.sim.vehicle_sensors`) in MK counts through the
+  simulator's own encoder (:func:`mkflight.sim.mk_units.encode_analog`, with the
+  airframe's accelerometer scales), as ``sim hover`` does;
 * the URG scene's pose (:meth:`SimWorld.pose_at`, a
   :data:`~mkflight.sim.urg_scene.PoseSource`): a scan's beams are timed up to ~100 ms
   before the reply is built, so recent times are interpolated from a ring buffer of
-  states (:data:`HISTORY_NS`); later times advance the vehicle.
+  states (:data:`HISTORY_NS`, :class:`~mkflight.sim.history.StateHistory`); later
+  times advance the vehicle.
+
+The airframe is :func:`~mkflight.sim.airframe.airframe_from_config` of ``cfg.sim`` (the
+nominal one, or one drawn from the envelope with ``sim.seed``): the simulator reads
+nothing of ``mk``, ``control`` or ``laser``. It is logged once at the start (``sim
+airframe``), and every touchdown (the vehicle meeting the floor from the air) is logged
+(``sim touchdown``: time, downward speed, the height it came from, who flew it) and
+kept in :attr:`SimWorld.touchdowns`: the truth of a landing's hardness (SPEC §8: ≤ 0.5
+m/s).
 
 Closed loop: the vehicle flies what the FC flies (``FcModel.effective_command``, the
 extern command added to the pilot's sticks, gas capped by the stick gas). The command is
@@ -29,18 +39,14 @@ literally, stick gas included.
 Time never goes back: a request in the past is answered from the history, the state
 stays where it is.
 
-The truth log (``truth.txt``, as ``sim hover`` writes it): a header line ``t x y z``, a
-``# t0_ns N`` comment (the host monotonic time of ``t`` = 0, so a flight's monotonic
-stamps can be matched), then one row per :data:`TRUTH_PERIOD_NS` of vehicle time:
-``t`` seconds since ``truth_origin_ns``, ``x y`` world metres (SPEC §1), ``z`` height up;
-flushed per row, so a killed process leaves it readable.
+The truth log (``truth.txt``, :class:`~mkflight.sim.truth.TruthLog`, as ``sim hover``
+writes it): the airframe, then one row per :data:`TRUTH_PERIOD_NS` of vehicle time
+(seconds since ``truth_origin_ns``, world x and y, height up) and a ``# touchdown T_S
+SPEED_MPS`` comment per touchdown.
 """
 
 from __future__ import annotations
 
-import bisect
-import math
-from collections import deque
 from pathlib import Path
 from typing import Final
 
@@ -49,12 +55,15 @@ import structlog
 
 from mkflight.clock import NS_PER_S
 from mkflight.config import Config, SimFcConfig
-from mkflight.logs._file import LineFile
 from mkflight.mk.messages import ANALOG_GAS
-from mkflight.mk.units import MkCalibration, analog_from_si
+from mkflight.sim.airframe import airframe_from_config, describe
 from mkflight.sim.fc import FcModel
+from mkflight.sim.fc_timing import DebugTiming
 from mkflight.sim.fc_uart import WireChunk
+from mkflight.sim.history import StateHistory, scene_pose
+from mkflight.sim.mk_units import encode_analog
 from mkflight.sim.room import Room, rect_walls
+from mkflight.sim.truth import TruthLog
 from mkflight.sim.urg_scene import ScenePose
 from mkflight.sim.vehicle import Sticks, VehicleParams, VehicleState, initial_state, step
 from mkflight.sim.vehicle_sensors import battery_reading_v, imu_measured_si
@@ -65,34 +74,6 @@ MIN_STEP_NS: Final = 200_000  # closer requests are answered from the current st
 log = structlog.get_logger("mkflight.sim")
 
 TRUTH_PERIOD_NS: Final = 50_000_000  # at most one truth row per 50 ms of vehicle time
-TRUTH_HEADER: Final = "t x y z\n"
-
-
-class TruthLog:
-    """The ``t x y z`` truth file (module docstring), created new and flushed per row."""
-
-    def __init__(self, path: str | Path, *, origin_ns: int) -> None:
-        """Create ``path`` (never overwritten) and write the header and the origin comment.
-
-        Raises:
-            FileExistsError: ``path`` exists.
-        """
-        self.origin_ns = origin_ns
-        self._file = LineFile(Path(path), "utf-8")
-        self._file.write_line(TRUTH_HEADER)
-        self._file.write_line(f"# t0_ns {origin_ns} (host monotonic clock at t = 0)\n")
-        self.rows = 0
-
-    def write(self, t_ns: int, state: VehicleState) -> None:
-        """One row: seconds since the origin, world x and y (m), height up (m)."""
-        x, y, _ = state.pos_w_m
-        t_s = (t_ns - self.origin_ns) / NS_PER_S
-        self._file.write_line(f"{t_s:.4f} {x:.5f} {y:.5f} {state.height_m:.5f}\n")
-        self.rows += 1
-
-    def close(self) -> None:
-        """Flush, fsync and close (idempotent)."""
-        self._file.close()
 
 
 class SimWorld:
@@ -109,12 +90,15 @@ class SimWorld:
         stick_gas_with_extern_only: bool = True,
         pos_w_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
         yaw_rad: float = 0.0,
+        params: VehicleParams | None = None,
     ) -> None:
         """Put the vehicle at rest at ``pos_w_m`` (on the floor if z = 0) at host ``t0_ns``.
 
         Args:
-            cfg: the configuration (``mk`` counts and signs, ``sim.vehicle``).
-            seed: seeds the vehicle's flight errors, gusts and the sensor noise.
+            cfg: the configuration: ``sim`` only (the airframe, ``sim.airframe`` and
+                ``sim.seed``; the FC's settings).
+            seed: seeds this flight: the vehicle's per-flight errors, its gusts, the
+                sensor noise and the links' jitter (not the airframe: ``sim.seed``).
             t0_ns: the host monotonic time that is vehicle time 0.
             truth_path: write the truth log there (a new file), else none.
             truth_origin_ns: the truth log's ``t`` = 0 (default ``t0_ns``; 0 gives host
@@ -122,12 +106,18 @@ class SimWorld:
             stick_gas_with_extern_only: the simulated pilot's gas (module docstring).
             pos_w_m: the start position, world frame W (z down).
             yaw_rad: the start heading (SPEC §1, clockwise).
+            params: the airframe (default: ``airframe_from_config(cfg.sim)``).
 
         Raises:
             FileExistsError: ``truth_path`` exists.
         """
-        self.params = VehicleParams.from_config(cfg)
-        self.cal = MkCalibration.from_config(cfg.mk)
+        self.params = airframe_from_config(cfg.sim) if params is None else params
+        self.seed = seed
+        self.airframe_info: dict[str, object] = {
+            "kind": cfg.sim.airframe if params is None else "given",
+            "seed": cfg.sim.seed,
+            **describe(self.params),
+        }
         vehicle_seed, sensor_seed = np.random.SeedSequence(seed).spawn(2)
         self.rng = np.random.default_rng(vehicle_seed)
         self.sensor_rng = np.random.default_rng(sensor_seed)
@@ -140,17 +130,20 @@ class SimWorld:
             self.rng,
             pos_w_m=pos_w_m,
             yaw_rad=yaw_rad,
-            used_ah=cfg.sim.vehicle.battery_used_ah,
+            used_ah=self.params.battery_used_ah,
+            gust_seed=seed,
         )
         self._t_ns = t0_ns
         self._sticks = Sticks()
         self.extern_active = False  # the FC applies ExternControl (logged on each change)
-        self._history: deque[tuple[int, VehicleState]] = deque([(t0_ns, self._state)])
+        self._history = StateHistory(HISTORY_NS, t0_ns, self._state)
+        self._peak_m = 0.0  # the highest point since the last touchdown (or the start)
         self._truth: TruthLog | None = None
         self._truth_due_ns = t0_ns
         if truth_path is not None:
             origin = t0_ns if truth_origin_ns is None else truth_origin_ns
-            self._truth = TruthLog(truth_path, origin_ns=origin)
+            self._truth = TruthLog(truth_path, origin_ns=origin, airframe=self.airframe_info)
+        log.info("sim airframe", flight_seed=seed, **self.airframe_info)
         self._write_truth()
 
     # ----------------------------------------------------------------- state
@@ -168,6 +161,11 @@ class SimWorld:
     def sticks(self) -> Sticks:
         """What the vehicle flew in its last advance (MK counts)."""
         return self._sticks
+
+    @property
+    def touchdowns(self) -> tuple[tuple[float, float], ...]:
+        """Every touchdown so far: ``(t_s, speed_mps)``, vehicle time (0 at ``t0_ns``)."""
+        return self._state.touchdowns
 
     @property
     def truth_rows(self) -> int:
@@ -221,17 +219,32 @@ class SimWorld:
         sticks = self._sticks = self.command_sticks()
         while self._t_ns < t_ns:
             nxt = min(t_ns, self._t_ns + MAX_CHUNK_NS)
+            before = len(self._state.touchdowns)
             self._state = step(
                 self._state, sticks, (nxt - self._t_ns) / NS_PER_S, self.params, self.rng
             )
             self._t_ns = nxt
-            self._history.append((nxt, self._state))
+            self._history.append(nxt, self._state)
+            if len(self._state.touchdowns) > before:
+                self._touched_down(before)
+            self._peak_m = max(self._peak_m, self._state.height_m)
             if nxt >= self._truth_due_ns:
                 self._write_truth()
-        horizon = self._t_ns - HISTORY_NS
-        while len(self._history) > 2 and self._history[1][0] <= horizon:
-            self._history.popleft()
         return self._state
+
+    def _touched_down(self, known: int) -> None:
+        """Log the touchdowns after the first ``known`` and note them in the truth log."""
+        for t_s, speed in self._state.touchdowns[known:]:
+            log.info(
+                "sim touchdown",
+                t_s=round(t_s, 3),
+                speed_mps=round(speed, 3),
+                height_m=round(self._peak_m, 3),  # where it came down from
+                extern_active=self.extern_active,  # False: the pilot's sticks flew it
+            )
+            if self._truth is not None:
+                self._truth.touchdown(self.t0_ns + round(t_s * NS_PER_S), speed)
+        self._peak_m = 0.0
 
     def _write_truth(self) -> None:
         """A truth row now (if there is a log) and the next one due a period later."""
@@ -239,23 +252,11 @@ class SimWorld:
             self._truth.write(self._t_ns, self._state)
         self._truth_due_ns = self._t_ns + TRUTH_PERIOD_NS
 
-    def _bracket(self, t_ns: int) -> tuple[int, int]:
-        """History indexes ``(i, j)`` with ``t_i <= t_ns <= t_j`` (clamped to the ends)."""
-        h = self._history
-        j = bisect.bisect_left(h, t_ns, key=lambda e: e[0])
-        if j <= 0:
-            return 0, 0
-        if j >= len(h):
-            return len(h) - 1, len(h) - 1
-        return j - 1, j
-
     def state_at(self, t_ns: int) -> VehicleState:
         """The vehicle at ``t_ns``: advanced to it if later, else the nearest stored state."""
         if t_ns >= self._t_ns:
             return self.advance_to(t_ns)
-        i, j = self._bracket(t_ns)
-        (ti, si), (tj, sj) = self._history[i], self._history[j]
-        return si if t_ns - ti <= tj - t_ns else sj
+        return self._history.nearest(t_ns)
 
     def pose_at(self, t_ns: int) -> ScenePose:
         """Where the URG is at ``t_ns`` (a :data:`~mkflight.sim.urg_scene.PoseSource`).
@@ -265,25 +266,15 @@ class SimWorld:
         the history: its oldest state.
         """
         if t_ns >= self._t_ns:
-            return _pose(self.advance_to(t_ns))
-        i, j = self._bracket(t_ns)
-        (ti, a), (tj, b) = self._history[i], self._history[j]
-        if tj <= ti:
-            return _pose(a)
-        w = (t_ns - ti) / (tj - ti)
-        dyaw = math.remainder(b.yaw_rad - a.yaw_rad, math.tau)
-        return ScenePose(
-            x_m=a.pos_w_m[0] + w * (b.pos_w_m[0] - a.pos_w_m[0]),
-            y_m=a.pos_w_m[1] + w * (b.pos_w_m[1] - a.pos_w_m[1]),
-            yaw_rad=math.remainder(a.yaw_rad + w * dyaw, math.tau),
-            height_m=a.height_m + w * (b.height_m - a.height_m),
-            roll_rad=a.roll_rad + w * (b.roll_rad - a.roll_rad),
-            pitch_rad=a.pitch_rad + w * (b.pitch_rad - a.pitch_rad),
-        )
+            return scene_pose(self.advance_to(t_ns))
+        return self._history.pose_at(t_ns)
 
     # ----------------------------------------------------------------- the FC's view
     def analog(self, t_ns: int, fc: FcModel) -> dict[int, int]:
         """DebugOut counts at ``t_ns``: the IMU and battery measured, in MK units (SPEC §1).
+
+        Encoded by the simulator's own :func:`~mkflight.sim.mk_units.encode_analog` with
+        this airframe's accelerometer scales, never the flight's calibration.
 
         Also attaches ``fc`` (its command is what the vehicle flies). Gas (index 7) is
         4x the gas the vehicle flies, as the FC reports it; the receiver level is the
@@ -295,34 +286,14 @@ class SimWorld:
         battery_v = self.battery_override_v
         if battery_v is None:
             battery_v = battery_reading_v(state, self.params, self.sensor_rng)
-        values = analog_from_si(
-            pitch_rad=m.pitch_rad,
-            roll_rad=m.roll_rad,
-            yaw_rad=m.yaw_rad,
-            acc_x_mps2=m.acc_x_mps2,
-            acc_y_mps2=m.acc_y_mps2,
-            acc_z_mps2=m.acc_z_mps2,
-            battery_v=battery_v,
-            cal=self.cal,
-        )
+        values = encode_analog(m, battery_v, self.params)
         values[ANALOG_GAS] = 4 * round(self._sticks.gas_counts)
         return values
 
     def close(self) -> None:
-        """Close the truth log (idempotent)."""
+        """Close the truth log (idempotent); a pending touchdown line gets a row after it."""
         if self._truth is not None:
-            self._truth.close()
-
-
-def _pose(s: VehicleState) -> ScenePose:
-    return ScenePose(
-        x_m=s.pos_w_m[0],
-        y_m=s.pos_w_m[1],
-        yaw_rad=s.yaw_rad,
-        height_m=s.height_m,
-        roll_rad=s.roll_rad,
-        pitch_rad=s.pitch_rad,
-    )
+            self._truth.close(self._t_ns, self._state)
 
 
 def default_room() -> Room:
@@ -347,8 +318,14 @@ class WorldFc(FcModel):
     """
 
     def __init__(self, settings: SimFcConfig, world: SimWorld, *, t_ns: int) -> None:
-        """Boot the FC at ``t_ns`` with ``world`` as its source, and attach it."""
-        super().__init__(settings, world, t_ns=t_ns)
+        """Boot the FC at ``t_ns`` with ``world`` as its source, and attach it.
+
+        Its DebugOut timing is the airframe's (``debug_jitter_ticks``,
+        ``debug_late_fraction``), seeded with the world's seed.
+        """
+        p = world.params
+        timing = DebugTiming(p.debug_jitter_ticks, p.debug_late_fraction, seed=world.seed)
+        super().__init__(settings, world, t_ns=t_ns, timing=timing)
         self.world = world
         world.attach(self)
 

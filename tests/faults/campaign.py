@@ -631,6 +631,7 @@ def _truth_heights(folder: Path) -> list[float]:
     for path in (folder / "truth.txt", folder.parent / "truth.txt"):
         if path.is_file():
             rows = path.read_text(encoding="utf-8").splitlines()[1:]
+            rows = [r for r in rows if not r.lstrip().startswith("#")]  # touchdown, airframe
             return [float(r.split()[3]) for r in rows if len(r.split()) == 4]
     return []
 

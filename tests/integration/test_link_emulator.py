@@ -17,13 +17,14 @@ from mkflight.mk.messages import ExternControl
 from mkflight.mk.units import DEFAULT_CALIBRATION
 from mkflight.sim.fc_server import FcEmulator
 from mkflight.sim.sources import RestingVehicleSource
+from mkflight.sim.vehicle import VehicleParams
 
 SETTINGS = LinkSettings.from_config(Config())
 
 
 @pytest.fixture
 async def emulator(tmp_path: Path) -> AsyncIterator[FcEmulator]:
-    source = RestingVehicleSource(DEFAULT_CALIBRATION, seed=3)
+    source = RestingVehicleSource(VehicleParams(), seed=3)
     async with FcEmulator(SimFcConfig(), source, link=tmp_path / "fc0") as emu:
         yield emu
 
@@ -62,7 +63,7 @@ async def test_take_control_then_release_on_close(emulator: FcEmulator) -> None:
 
 
 async def test_extern_gas_is_capped_by_the_stick(tmp_path: Path) -> None:
-    source = RestingVehicleSource(DEFAULT_CALIBRATION, seed=3)
+    source = RestingVehicleSource(VehicleParams(), seed=3)
     async with FcEmulator(SimFcConfig(stick_gas=100), source) as emulator:
         link = await open_link(emulator)
         await link.next_sample(timeout_s=1.0)

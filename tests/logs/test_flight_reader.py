@@ -49,8 +49,8 @@ from mkflight.mk.messages import (
     debug_request,
     ppm_request,
 )
+from mkflight.sim.truth import TruthLog
 from mkflight.sim.vehicle import VehicleState
-from mkflight.sim.world import TruthLog
 from tests.integration.recorded import commands_sent
 
 T0_NS = 7_000_000_000  # the raw recorders' clock at the folder's creation

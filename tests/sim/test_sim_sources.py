@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -12,8 +13,10 @@ from mkflight.mk.messages import DebugOut, debug_request
 from mkflight.mk.units import DEFAULT_CALIBRATION, imu_from_debug
 from mkflight.sim.fc import FcModel
 from mkflight.sim.sources import FixedSource, RestingVehicleSource
+from mkflight.sim.vehicle import VehicleParams
 
 G = DEFAULT_CALIBRATION.g_mps2
+NOMINAL = VehicleParams()  # the simulated airframe's own scales (the flight decodes)
 FC = FcModel(SimFcConfig(), FixedSource({}))
 
 
@@ -32,7 +35,7 @@ def test_resting_vehicle_reads_its_attitude_and_gravity(
     pitch: float, roll: float, yaw: float
 ) -> None:
     source = RestingVehicleSource(
-        DEFAULT_CALIBRATION, seed=1, pitch_rad=pitch, roll_rad=roll, yaw_rad=yaw, noise=False
+        NOMINAL, seed=1, pitch_rad=pitch, roll_rad=roll, yaw_rad=yaw, noise=False
     )
     imu = imu_from_debug(DebugOut.from_values(dict(source.analog(0, FC))), 0, DEFAULT_CALIBRATION)
     assert imu.pitch_rad == pytest.approx(pitch, abs=0.001)
@@ -46,10 +49,10 @@ def test_resting_vehicle_reads_its_attitude_and_gravity(
 
 def test_resting_vehicle_noise_is_small_and_seeded() -> None:
     def samples(seed: int) -> list[dict[int, int]]:
-        source = RestingVehicleSource(DEFAULT_CALIBRATION, seed, pitch_rad=0.1)
+        source = RestingVehicleSource(NOMINAL, seed, pitch_rad=0.1)
         return [dict(source.analog(i, FC)) for i in range(50)]
 
-    base = RestingVehicleSource(DEFAULT_CALIBRATION, 0, pitch_rad=0.1, noise=False).base_counts
+    base = RestingVehicleSource(NOMINAL, 0, pitch_rad=0.1, noise=False).base_counts
     first = samples(3)
     assert first == samples(3)
     assert first != samples(4)
@@ -61,7 +64,7 @@ def test_resting_vehicle_noise_is_small_and_seeded() -> None:
 
 
 def test_resting_vehicle_behind_the_fc_model() -> None:
-    source = RestingVehicleSource(DEFAULT_CALIBRATION, seed=7, battery_v=11.8)
+    source = RestingVehicleSource(NOMINAL, seed=7, battery_v=11.8)
     fc = FcModel(SimFcConfig(mk3mag_frames=False), source)
     fc.receive(debug_request(5), 1_000_000)
     found = FrameParser().feed(b"".join(fc.poll(30_000_000)))
@@ -73,4 +76,14 @@ def test_resting_vehicle_behind_the_fc_model() -> None:
 
 def test_non_finite_attitude_is_rejected() -> None:
     with pytest.raises(ValueError, match="pitch_rad"):
-        RestingVehicleSource(DEFAULT_CALIBRATION, 1, pitch_rad=math.nan)
+        RestingVehicleSource(NOMINAL, 1, pitch_rad=math.nan)
+
+
+def test_resting_vehicle_counts_are_the_airframes_scales() -> None:
+    """The sim encodes with its airframe's accelerometer, whatever the flight believes."""
+    other = dataclasses.replace(NOMINAL, acc_nick_counts_per_g=650.0, acc_z_counts_per_mps2=17.0)
+    pitch = 0.2
+    counts = RestingVehicleSource(other, seed=1, pitch_rad=pitch, noise=False).base_counts
+    assert counts[2] == round(-G * math.sin(pitch) * 650.0 / G)  # AccNick
+    imu = imu_from_debug(DebugOut.from_values(counts), 0, DEFAULT_CALIBRATION)
+    assert imu.acc_x_mps2 == pytest.approx(G * math.sin(pitch) * 650.0 / 606.3, abs=0.02)

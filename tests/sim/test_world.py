@@ -2,22 +2,52 @@
 
 from __future__ import annotations
 
+import contextlib
+import json
 import math
+from collections.abc import Iterator, MutableMapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
+import structlog
+from structlog.testing import capture_logs
 
-from mkflight.config import Config, SimConfig, SimFcConfig, SimVehicleConfig
+from mkflight.config import (
+    Config,
+    ControlConfig,
+    EstimationConfig,
+    LaserConfig,
+    MkConfig,
+    SimConfig,
+    SimFcConfig,
+    SimVehicleConfig,
+)
 from mkflight.mk.messages import ANALOG_GAS, DebugOut, ExternControl
-from mkflight.mk.units import imu_from_debug
+from mkflight.mk.units import DEFAULT_CALIBRATION, imu_from_debug
+from mkflight.sim.airframe import describe, random_airframe
 from mkflight.sim.fc import FcModel
+from mkflight.sim.fc_timing import DebugTiming
 from mkflight.sim.world import HISTORY_NS, TRUTH_PERIOD_NS, SimWorld, WorldFc
 
 T0 = 5_000_000_000_123  # a host monotonic time: deliberately not round
 MS = 1_000_000
 S = 1_000_000_000
 CALM = Config(sim=SimConfig(vehicle=SimVehicleConfig(gusts=False)))  # deterministic climbs
+GEAR_M = 0.01  # on the floor: the landing gear's sag (a few mm) unloaded by partial thrust
+
+
+@contextlib.contextmanager
+def events() -> Iterator[list[MutableMapping[str, Any]]]:
+    """The structlog events logged inside, whatever level an earlier test configured."""
+    saved = structlog.get_config()
+    structlog.reset_defaults()
+    try:
+        with capture_logs() as logs:
+            yield logs
+    finally:
+        structlog.configure(**saved)
 
 
 def make(
@@ -79,7 +109,7 @@ def test_stick_gas_below_hover_keeps_it_down_when_flown_literally() -> None:
     fly(world, fc, T0 + 2 * S)
     assert world.sticks.gas_counts == 60  # the pilot's stick gas, flown as it is
     assert world.state.on_ground
-    assert world.state.height_m == 0.0
+    assert world.state.height_m < GEAR_M
 
 
 def test_stick_gas_above_hover_lifts_off_when_flown_literally() -> None:
@@ -92,7 +122,8 @@ def test_extern_gas_above_hover_climbs_and_below_stays() -> None:
     world, fc = make()
     take_control(fc, T0 + 100 * MS, gas=90)
     fly(world, fc, T0 + 1 * S, hold_every_ns=500 * MS)
-    assert world.state.height_m == 0.0  # below hover gas
+    assert world.state.on_ground  # below hover gas
+    assert world.state.height_m < GEAR_M
     assert world.sticks.gas_counts == 90
     take_control(fc, world.t_ns, gas=150)
     h0 = world.state.height_m
@@ -183,7 +214,7 @@ def test_debug_out_at_rest_reads_level_and_minus_g() -> None:
     for k in range(1, 41):
         t = T0 + k * 53 * MS
         fc.poll(t)
-        samples.append(imu_from_debug(fc.debug_out(t), t, world.cal))  # the FC's own frame
+        samples.append(imu_from_debug(fc.debug_out(t), t, DEFAULT_CALIBRATION))  # the flight's
     pitch = np.array([s.pitch_rad for s in samples])
     roll = np.array([s.roll_rad for s in samples])
     acc_z = np.array([s.acc_z_mps2 for s in samples])
@@ -200,7 +231,7 @@ def test_battery_override_is_what_the_fc_reads() -> None:
     world, fc = make()
     world.battery_override_v = 9.9
     values = world.analog(T0 + 60 * MS, fc)
-    imu = imu_from_debug(DebugOut.from_values(dict(values)), T0, world.cal)
+    imu = imu_from_debug(DebugOut.from_values(dict(values)), T0, DEFAULT_CALIBRATION)
     assert imu.battery_v == pytest.approx(9.9, abs=1e-6)
     assert world.state.battery_v > 11.0  # the vehicle itself is not affected
 
@@ -227,8 +258,11 @@ def test_truth_rows_are_written_at_most_every_50_ms(tmp_path: Path) -> None:
     assert rows[-1, 0] == pytest.approx(2.0, abs=0.06)
     assert rows[-1, 3] == pytest.approx(world.state.height_m, abs=0.2)
     assert rows[-1, 3] > 0.5  # z is height, up
-    header = path.read_text().splitlines()[:2]
-    assert header == ["t x y z", f"# t0_ns {T0} (host monotonic clock at t = 0)"]
+    header = path.read_text().splitlines()[:3]
+    assert header[:2] == ["t x y z", f"# t0_ns {T0} (host monotonic clock at t = 0)"]
+    assert header[2].startswith("# airframe {")
+    airframe = json.loads(header[2].removeprefix("# airframe "))
+    assert airframe == {"kind": "nominal", "seed": 1, **describe(world.params)}
     world.close()
 
 
@@ -249,3 +283,72 @@ def test_same_seed_same_flight() -> None:
 
     assert final(4) == final(4)
     assert final(4) != final(5)
+
+
+def test_a_touchdown_is_logged_kept_and_written_before_the_next_truth_row(tmp_path: Path) -> None:
+    path = tmp_path / "truth.txt"
+    world, fc = make(truth_path=path)
+    take_control(fc, T0 + 100 * MS, gas=150)
+    fly(world, fc, T0 + 1 * S)
+    assert world.touchdowns == ()
+    top_m = world.state.height_m
+    with events() as logs:
+        fc.receive(ExternControl(gas=0, config=0).encode(), world.t_ns)  # motors off: it falls
+        fly(world, fc, world.t_ns + 3 * S)
+    assert len(world.touchdowns) == 1
+    t_s, speed = world.touchdowns[0]
+    assert speed > 2.0  # a free fall from above 0.5 m
+    (event,) = [e for e in logs if e["event"] == "sim touchdown"]
+    assert event["speed_mps"] == pytest.approx(speed, abs=1e-3)
+    assert event["t_s"] == pytest.approx(t_s, abs=1e-3)
+    assert event["height_m"] >= top_m
+    assert event["extern_active"] is False
+    world.close()
+    lines = path.read_text().splitlines()
+    (i,) = [k for k, line in enumerate(lines) if line.startswith("# touchdown")]
+    _, _, t_text, speed_text = lines[i].split()
+    assert float(t_text) == pytest.approx(t_s, abs=1e-4)  # the rows' time base (origin t0)
+    assert float(speed_text) == pytest.approx(speed, abs=1e-4)
+    assert len(lines[i + 1].split()) == 4  # a row follows
+    rows = np.loadtxt(path, skiprows=1, ndmin=2)  # the comments are skipped
+    assert rows.shape[1] == 4
+
+
+def test_the_airframe_is_the_sims_and_logged_once() -> None:
+    cfg = Config(sim=SimConfig(airframe="random", seed=9))
+    with events() as logs:
+        world, fc = make(cfg)
+    assert world.params == random_airframe(9)
+    (event,) = [e for e in logs if e["event"] == "sim airframe"]
+    assert event["kind"] == "random"
+    assert event["seed"] == 9
+    assert event["flight_seed"] == 3
+    assert event["hover_gas_counts"] == pytest.approx(world.params.hover_gas_counts, abs=1e-6)
+    p = world.params
+    assert fc.debug_jitter.timing == DebugTiming(p.debug_jitter_ticks, p.debug_late_fraction, 3)
+
+
+def test_the_vehicle_reads_nothing_of_the_flights_config() -> None:
+    """mk, control, laser and estimation are the flight's: the same bytes fly the same vehicle."""
+    other = Config(
+        mk=MkConfig(counts_per_rad=80.0, acc_nick_counts_per_g=500.0, acc_z_counts_per_mps2=12.0),
+        control=ControlConfig(hover_gas=80, hover_voltage_v=12.5),
+        laser=LaserConfig(transport_delay_s=0.1, hat_offset_m=0.2, hat_steps=(44, 100)),
+        estimation=EstimationConfig(filter_gain_per_s=1.0),
+        sim=CALM.sim,
+    )
+
+    def flight(cfg: Config) -> tuple[list[object], list[dict[int, int]]]:
+        world, fc = make(cfg)
+        take_control(fc, T0 + 100 * MS, gas=130)
+        states: list[object] = []
+        debug: list[dict[int, int]] = []
+        for k in range(30):
+            t = T0 + 200 * MS + k * 53 * MS
+            fc.receive(ExternControl(nick=10 - k, roll=k % 7, gas=120, config=1).encode(), t)
+            fc.poll(t + 20 * MS)
+            states.append(world.state)
+            debug.append(dict(world.analog(t + 20 * MS, fc)))
+        return states, debug
+
+    assert flight(CALM) == flight(other)

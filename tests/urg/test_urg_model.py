@@ -7,10 +7,9 @@ import itertools
 import numpy as np
 import pytest
 
-from mkflight.config import LaserConfig
 from mkflight.sim.room import box_room, room_caster
 from mkflight.sim.urg import UrgModel
-from mkflight.sim.urg_scene import FixedRanges, RoomScene, ScenePose
+from mkflight.sim.urg_scene import FixedRanges, HatGeometry, RoomScene, ScenePose
 from mkflight.urg.codec import gd_command, md_command, scip2_command, simple_command, tm_command
 from mkflight.urg.replies import InfoReply, Reply, ReplyParser, ScanReply
 from mkflight.urg.units import URG_04LX, ranges_m
@@ -312,8 +311,8 @@ def test_scene_tilt_stretches_wall_ranges_and_far_walls_read_0() -> None:
 
 
 def test_scene_errors_and_motion_during_the_sweep() -> None:
-    laser = LaserConfig(hat_steps=(44, 60), scan_steps=(61, 725))
-    scene = RoomScene(room_caster(box_room(8, 8)), laser=laser, error_fraction=0.05, seed=1)
+    hat = HatGeometry(hat_steps=(44, 60), mirror_edge_last_step=60, hat_offset_m=0.05)
+    scene = RoomScene(room_caster(box_room(8, 8)), hat=hat, error_fraction=0.05, seed=1)
     raw = scene.ranges_mm(0, np.arange(61, 726))
     codes = raw[(raw > 0) & (raw < 20)]
     assert 10 < codes.size < 70
