@@ -302,6 +302,33 @@ def build_parser() -> argparse.ArgumentParser:
             "mkflight.commands.analyze:cmd_analyze_latency", log_dir="log_dir", as_json="json"
         )
     )
+
+    tune = commands.add_parser(
+        "tune",
+        parents=[config_opts],
+        help="identify a flight's airframe and write a config tuned for it",
+        description="From the HOLD phase of a flight folder: the attitude response per axis "
+        "(delay + first-order lag and gain, seed §F), the hover gas, the accelerometers' "
+        "vibration and biases; then the overrides of the base config (--config, --set) for "
+        "that airframe by a documented rule (mkflight.analysis.tune).",
+    )
+    tune.add_argument("log_dir", metavar="LOGDIR", help="the flight folder")
+    tune.add_argument(
+        "--write-config",
+        metavar="F",
+        help="write the tuned configuration (all keys) to the new file F; an existing F is "
+        "refused unless it is the --config file itself",
+    )
+    tune.add_argument("--json", action="store_true", help="one JSON object")
+    tune.set_defaults(
+        func=_command(
+            "mkflight.commands.tune:cmd_tune",
+            log_dir="log_dir",
+            write_config="write_config",
+            as_json="json",
+            **_CONFIG_ARGS,
+        )
+    )
     return parser
 
 
