@@ -8,13 +8,15 @@ Per scan:
 
 * **Height** from the hat steps (``laser.hat_steps``) by :func:`~mkflight.urg.hat.hat_height`
   (SPEC eq 26, with the pitch and roll at the scan's time), or ``None`` with the reason.
+  An unknown attitude (the FC sends NaN) is taken as level: then the flight step lands
+  on the hat alone, level, and a 0.1 rad tilt would read only 0.5 % high.
 * **Points** from the scan steps (``laser.scan_steps``): step ``s`` is at body angle
   ``b = -(s - 384)·2π/1024`` (right positive, SPEC §2). Each beam is rotated into the level
   (heading) frame by ``R_y(θ) R_x(φ)`` -- the rotation of SPEC §3 -- and its horizontal
   part is kept, so a tilted vehicle sees its vertical walls where they are (a 0.15 rad tilt
   would otherwise stretch a 3 m wall by 3.4 cm). With a valid hat height, a beam that
   drops below ``FLOOR_FRACTION`` of the sensor's height above the floor hit the floor, not
-  a wall, and is dropped. Unknown attitude (NaN): the beams are taken as level.
+  a wall, and is dropped.
 * **Pose** from :class:`~mkflight.scanmatch.keyframe.KeyframeMatcher` (PL-ICP against
   keyframes), ``dt_s`` from consecutive scans' ``t_ns``.
 
@@ -235,8 +237,8 @@ class LaserPipeline:
 
         Args:
             scan: the URG scan (``ranges_m[i]`` is step ``first_step + i``, NaN invalid).
-            pitch_rad: pitch at ``scan.t_ns`` (SPEC §1; NaN = unknown: no height, level
-                beams).
+            pitch_rad: pitch at ``scan.t_ns`` (SPEC §1; NaN or inf = unknown: the vehicle
+                is taken as level, as a landing without the FC's samples commands it).
             roll_rad: roll at ``scan.t_ns``.
             motion_prior: the vehicle's motion since the previous scan, expressed in the
                 previous scan's body frame with SPEC §1's signs (dx forward, dy right, dψ
@@ -257,6 +259,9 @@ class LaserPipeline:
         else:
             (ranges, steps), bad_scan = arrays, ""
 
+        if not (math.isfinite(pitch_rad) and math.isfinite(roll_rad)):
+            # the FC's attitude is garbage: the vehicle flies level (as commanded then)
+            pitch_rad = roll_rad = 0.0
         hat_mask = _in(steps, self._laser.hat_steps)
         height_m: float | None = None
         if bad_scan:

@@ -253,10 +253,12 @@ def test_invalid_hat_beams_give_no_height_but_a_pose() -> None:
     assert r.pose is not None
 
 
-def test_unknown_attitude_gives_no_height_but_a_pose() -> None:
-    r = LaserPipeline(CFG).process(scan_at(ScenePose(height_m=HEIGHT_M), 0), math.nan, 0.0)
-    assert r.height_m is None
-    assert r.height_reason == "attitude unknown"
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_an_unknown_attitude_is_taken_as_level(bad: float) -> None:
+    """The FC sends garbage: the landing flies level on the hat alone, so level it is."""
+    r = LaserPipeline(CFG).process(scan_at(ScenePose(height_m=HEIGHT_M), 0), bad, 0.0)
+    assert r.height_m == pytest.approx(HEIGHT_M, abs=0.01)
+    assert r.height_reason == ""
     assert r.pose is not None
 
 
