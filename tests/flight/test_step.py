@@ -8,9 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mkflight.config import Config
+from mkflight.control.descent import DescentParams
 from mkflight.control.limits import command_within_limits
 from mkflight.control.phases import Phase, PhaseRequests
-from mkflight.control.descent import DescentParams
 from mkflight.flight.step import MAX_HOLD_OFFSET_M, FlightCore
 from mkflight.msgs import ImuSample, Pose2D
 from mkflight.safety.failsafe import FailsafeAction
