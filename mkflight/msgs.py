@@ -71,6 +71,9 @@ class Estimate:
     ``vz_up_mps`` its rate. ``vx_mps``/``vy_mps`` are the complementary filter's world-frame
     velocity (eq 15-16); ``yaw_rad`` is clockwise. ``pose_valid``/``height_valid`` say
     whether the laser pose / hat height behind them is fresh enough to fly on.
+    ``ax_ext_mps2``/``ay_ext_mps2`` are the horizontal acceleration (W) that the attitude
+    does not explain — gusts, drag — as the accelerometers see it, its lasting part
+    removed (:mod:`mkflight.estimation.tilt_accel`); 0 when not estimated.
     """
 
     t_ns: int
@@ -83,6 +86,8 @@ class Estimate:
     vz_up_mps: float
     pose_valid: bool = True
     height_valid: bool = True
+    ax_ext_mps2: float = 0.0
+    ay_ext_mps2: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -197,6 +197,8 @@ class Controller:
                 vy_mps=est.vy_mps,
                 yaw_rad=est.yaw_rad,
                 dt_s=dt_s,
+                ff_ax_w_mps2=-c.disturbance_ff * est.ax_ext_mps2,
+                ff_ay_w_mps2=-c.disturbance_ff * est.ay_ext_mps2,
             )
         else:
             pos = None

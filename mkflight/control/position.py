@@ -21,6 +21,7 @@ Cascade, like PX4's ``PositionControl``:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from mkflight.config import ControlConfig, MkConfig
@@ -96,6 +97,8 @@ def position_step(
     vy_mps: float,
     yaw_rad: float,
     dt_s: float,
+    ff_ax_w_mps2: float = 0.0,
+    ff_ay_w_mps2: float = 0.0,
 ) -> PositionResult | None:
     """Run the horizontal cascade once (eq 1-2, 21-22, 3-6; SPEC §4).
 
@@ -111,6 +114,9 @@ def position_step(
         vy_mps: estimated world velocity y (m/s, eq 16).
         yaw_rad: estimated heading psi (clockwise, rad).
         dt_s: seconds since the previous step (from timestamps).
+        ff_ax_w_mps2: acceleration feed-forward in W (m/s^2): countering the turbulence
+            the estimator sees (``control.disturbance_ff``); non-finite: 0.
+        ff_ay_w_mps2: the same along y.
 
     Returns:
         The result, or None if any input is non-finite (the state is then unchanged and
@@ -127,8 +133,14 @@ def position_step(
     vsx, vsy, _ = clamp_norm(px.output, py.output, control.max_speed_mps)
 
     vg = velocity_gains(control, g)
-    ax = pid_update(vg, state.vel_x, error=vsx - vx_mps, measurement=vx_mps, dt_s=dt_s)
-    ay = pid_update(vg, state.vel_y, error=vsy - vy_mps, measurement=vy_mps, dt_s=dt_s)
+    ffx = ff_ax_w_mps2 if math.isfinite(ff_ax_w_mps2) else 0.0
+    ffy = ff_ay_w_mps2 if math.isfinite(ff_ay_w_mps2) else 0.0
+    ax = pid_update(
+        vg, state.vel_x, error=vsx - vx_mps, measurement=vx_mps, dt_s=dt_s, feedforward=ffx
+    )
+    ay = pid_update(
+        vg, state.vel_y, error=vsy - vy_mps, measurement=vy_mps, dt_s=dt_s, feedforward=ffy
+    )
     if not (ax.valid and ay.valid):
         return None
     abx, aby = world_to_body(ax.output, ay.output, yaw_rad)

@@ -19,6 +19,10 @@ compares like with like. A scan older than the history falls back on the one-sam
 prediction of eq 18-20; ``latency_compensation: false`` uses each pose as if it were
 current (the seed's behaviour).
 
+The horizontal acceleration integrated is, by default, the attitude's with the
+accelerometers' view of what it misses (:mod:`mkflight.estimation.tilt_accel`:
+``estimation.tilt_acceleration``), which keeps the motors' vibration out of the velocity.
+
 Non-finite or implausible input is rejected and counted: NaN never enters the state.
 """
 
@@ -37,6 +41,7 @@ from mkflight.estimation.filter import (
     rate_of_change,
 )
 from mkflight.estimation.records import EstimatorCounters, LaserStep
+from mkflight.estimation.tilt_accel import TiltAcceleration
 from mkflight.frames import body_to_world, level_acceleration, world_to_body, wrap_pi
 from mkflight.msgs import Estimate, ImuSample, Pose2D
 
@@ -116,6 +121,8 @@ class Estimator:
         self._bias_l: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._k_xy = cfg.filter_gain_per_s
         self._k_z = cfg.filter_gain_z_per_s
+        self._tilt = TiltAcceleration(g_mps2) if cfg.tilt_acceleration else None
+        self._raw_acc_l: tuple[float, float, float] | None = None
 
     # ----------------------------------------------------------------- public API
 
@@ -128,6 +135,11 @@ class Estimator:
     def last_acc_level(self) -> tuple[float, float, float] | None:
         """The newest sample's level-frame acceleration (FRD, no bias removed), or None."""
         return self._knots[-1].acc_l if self._knots else None
+
+    @property
+    def last_raw_acc_level(self) -> tuple[float, float, float] | None:
+        """The newest sample's level-frame acceleration from the accelerometers alone."""
+        return self._raw_acc_l
 
     @property
     def acc_bias_level(self) -> tuple[float, float, float]:
@@ -148,6 +160,11 @@ class Estimator:
         bx, by, bz = (v if math.isfinite(v) else 0.0 for v in bias_level_mps2)
         self._bias_l = (bx, by, bz)
 
+    def set_acc_noise(self, noise_mps2: tuple[float, float, float]) -> None:
+        """The accelerometers' measured noise (x, y, z), for the model-aided acceleration."""
+        if self._tilt is not None:
+            self._tilt.set_noise(*noise_mps2)
+
     def set_filter_gains(self, k_xy_per_s: float, k_z_per_s: float) -> None:
         """Set the complementary filter's gains k (eq 15-17), 1/s; non-finite or < 0: kept."""
         if math.isfinite(k_xy_per_s) and k_xy_per_s >= 0.0:
@@ -160,11 +177,13 @@ class Estimator:
         """The TABLE III values of the last accepted pose (None before the first)."""
         return self._laser_step
 
-    def on_imu(self, imu: ImuSample) -> Estimate:
+    def on_imu(self, imu: ImuSample, thrust_up_mps2: float | None = None) -> Estimate:
         """Predict with one IMU sample (eq 9-17): level -> world acceleration, then v, x.
 
         The sample's acceleration is held until the next one (eq 15's ``a(t)``); the step
         from the previous sample uses the previous acceleration and the real ``dt``.
+        ``thrust_up_mps2``: the thrust model's vertical acceleration for this sample (the
+        flight step's, in flight), with ``estimation.tilt_acceleration``.
         """
         f = (imu.acc_x_mps2, imu.acc_y_mps2, imu.acc_z_mps2)
         if not _finite(imu.pitch_rad, imu.roll_rad, imu.yaw_rad, *f) or any(
@@ -173,6 +192,11 @@ class Estimator:
             self._counts["imu_rejected"] += 1
             return self.estimate()
         acc_l = level_acceleration(*f, imu.pitch_rad, imu.roll_rad, self._g_mps2)
+        self._raw_acc_l = acc_l
+        if self._tilt is not None and (not self._knots or imu.t_ns > self._knots[-1].t_ns):
+            acc_l = self._tilt.blend(
+                imu.t_ns, acc_l, imu.pitch_rad, imu.roll_rad, thrust_up_mps2=thrust_up_mps2
+            )
         yaw = wrap_pi(imu.yaw_rad)
         if not self._knots:
             self._knots.append(_Knot(imu.t_ns, acc_l, yaw))
@@ -255,9 +279,12 @@ class Estimator:
             and now - self._last_height[0] <= self._height_stale_ns
         )
         yaw = wrap_pi(k.mk_yaw_rad + (offset or 0.0))
+        ax_ext = ay_ext = 0.0
+        if self._tilt is not None and offset is not None:
+            ax_ext, ay_ext = body_to_world(*self._tilt.turbulence_mps2, yaw)
         return Estimate(
             k.t_ns, k.x_m, k.y_m, yaw, k.h_m, k.vx_mps, k.vy_mps, k.vz_up_mps,
-            pose_valid, height_valid,
+            pose_valid, height_valid, ax_ext, ay_ext,
         )  # fmt: skip
 
     # ------------------------------------------------------------------ internals
@@ -276,9 +303,18 @@ class Estimator:
         return ax, ay, b[2] - k.acc_l[2]
 
     def _propagate(self, k: _Knot, nxt: _Knot) -> _Knot:
-        """``nxt`` with its state stepped from ``k`` (eq 15-17; trapezoidal position)."""
+        """``nxt`` with its state stepped from ``k`` (eq 15-17; trapezoidal position).
+
+        Eq 15 holds ``a(t)`` over the interval (forward Euler): the velocity then lags the
+        truth by half a sample (26 ms), which at the loop's crossover is phase the
+        attitude's own delay cannot spare. With ``estimation.tilt_acceleration`` the
+        interval's acceleration is the mean of its two samples instead (trapezoidal).
+        """
         dt = self._dt_s(k.t_ns, nxt.t_ns)
         ax, ay, az = self._acc_w(k)
+        if self._tilt is not None:  # the mean of the interval's two samples: no half-step lag
+            bx, by, bz = self._acc_w(nxt)
+            ax, ay, az = 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz)
         carry = self._cfg.latency_compensation
         x, y, vx, vy, meas_w = k.x_m, k.y_m, k.vx_mps, k.vy_mps, k.meas_w
         if self._yaw_offset_rad is not None:

@@ -27,7 +27,7 @@ def imu_at(t_ns: int, a_w: tuple[float, float, float], mk_yaw: float = 0.0) -> I
 
 def fly_constant_acceleration(compensate: bool) -> float:
     """RMS position error of a constant-acceleration flight, poses 100 ms late."""
-    est = Estimator(EstimationConfig(latency_compensation=compensate), G)
+    est = Estimator(EstimationConfig(tilt_acceleration=False, latency_compensation=compensate), G)
     a, v0 = (0.4, -0.3), (0.2, 0.1)
     queue: list[Pose2D] = []
     errors = []
@@ -54,7 +54,7 @@ def test_latency_compensation_removes_most_of_the_error() -> None:
 
 def test_position_is_the_laser_position_plus_the_integral_since() -> None:
     """A pose from 100 ms ago at rest: x = x_scan + integral of v_hat since (here 0)."""
-    est = Estimator(EstimationConfig(), G)
+    est = Estimator(EstimationConfig(tilt_acceleration=False), G)
     for i in range(5):
         est.on_imu(imu_at(i * T_NS, (0.0, 0.0, 0.0)))
     est.on_pose(Pose2D(2 * T_NS, 1.0, -2.0, 0.5))
@@ -68,7 +68,7 @@ def test_position_is_the_laser_position_plus_the_integral_since() -> None:
 
 
 def test_yaw_is_laser_yaw_plus_gyro_change_since_the_scan() -> None:
-    est = Estimator(EstimationConfig(), G)
+    est = Estimator(EstimationConfig(tilt_acceleration=False), G)
     rate = 0.2  # rad/s of gyro yaw, offset 1.0 from the laser's
     for i in range(6):
         est.on_imu(imu_at(i * T_NS, (0.0, 0.0, 0.0), mk_yaw=1.0 + rate * i * 0.05))
@@ -77,7 +77,7 @@ def test_yaw_is_laser_yaw_plus_gyro_change_since_the_scan() -> None:
 
 
 def test_laser_step_rotates_into_the_heading_frame() -> None:
-    est = Estimator(EstimationConfig(latency_compensation=False), G)
+    est = Estimator(EstimationConfig(tilt_acceleration=False, latency_compensation=False), G)
     est.on_imu(imu_at(0, (0.0, 0.0, 0.0)))
     est.on_pose(Pose2D(0, 0.0, 0.0, math.pi / 2))
     est.on_pose(Pose2D(100_000_000, 0.0, 0.1, math.pi / 2))  # moving +y, nose at +y
@@ -88,7 +88,7 @@ def test_laser_step_rotates_into_the_heading_frame() -> None:
 
 
 def test_without_compensation_the_pose_is_current() -> None:
-    est = Estimator(EstimationConfig(latency_compensation=False), G)
+    est = Estimator(EstimationConfig(tilt_acceleration=False, latency_compensation=False), G)
     for i in range(5):
         est.on_imu(imu_at(i * T_NS, (1.0, 0.0, 0.0)))
     est.on_pose(Pose2D(0, 0.5, 0.0, 0.0))
@@ -96,7 +96,7 @@ def test_without_compensation_the_pose_is_current() -> None:
 
 
 def test_history_miss_falls_back_on_eq18() -> None:
-    est = Estimator(EstimationConfig(imu_history_s=0.2), G)
+    est = Estimator(EstimationConfig(tilt_acceleration=False, imu_history_s=0.2), G)
     for i in range(20):
         est.on_imu(imu_at(i * T_NS, (0.0, 0.0, 0.0)))
     est.on_pose(Pose2D(0, 0.0, 0.0, 0.0))
@@ -109,7 +109,9 @@ def test_history_miss_falls_back_on_eq18() -> None:
 
 
 def test_validity_and_staleness() -> None:
-    est = Estimator(EstimationConfig(), G, pose_stale_s=0.3, height_stale_s=0.2)
+    est = Estimator(
+        EstimationConfig(tilt_acceleration=False), G, pose_stale_s=0.3, height_stale_s=0.2
+    )
     assert not est.estimate().pose_valid
     assert not est.estimate().height_valid
     est.on_imu(imu_at(0, (0.0, 0.0, 0.0)))
@@ -131,7 +133,7 @@ def test_validity_and_staleness() -> None:
 
 def test_climb_with_constant_acceleration() -> None:
     """Up is positive: a climb reads f_z = -(g + a_up) (a_z FRD is down)."""
-    est = Estimator(EstimationConfig(), G)
+    est = Estimator(EstimationConfig(tilt_acceleration=False), G)
     a_up = 0.5
     for i in range(100):
         t_ns = i * T_NS
@@ -146,7 +148,7 @@ def test_climb_with_constant_acceleration() -> None:
 
 
 def test_tilted_imu_at_rest_keeps_still() -> None:
-    est = Estimator(EstimationConfig(), G)
+    est = Estimator(EstimationConfig(tilt_acceleration=False), G)
     est.on_pose(Pose2D(0, 0.2, 0.3, 0.0))
     for i in range(100):
         p, r = 0.2 * math.sin(i / 7), -0.15 * math.cos(i / 5)
@@ -156,7 +158,7 @@ def test_tilted_imu_at_rest_keeps_still() -> None:
 
 
 def test_out_of_order_and_nan_are_counted() -> None:
-    est = Estimator(EstimationConfig(), G)
+    est = Estimator(EstimationConfig(tilt_acceleration=False), G)
     est.on_imu(imu_at(T_NS, (0.0, 0.0, 0.0)))
     est.on_imu(imu_at(0, (0.0, 0.0, 0.0)))
     est.on_imu(ImuSample(2 * T_NS, math.nan, 0.0, 0.0, 0.0, 0.0, -G, 12.0))
@@ -188,7 +190,7 @@ def assert_finite(e: Estimate) -> None:
 @settings(max_examples=150, deadline=None)
 @given(st.data(), st.booleans())
 def test_non_finite_input_never_reaches_the_estimate(data: st.DataObject, comp: bool) -> None:
-    est = Estimator(EstimationConfig(latency_compensation=comp), G)
+    est = Estimator(EstimationConfig(tilt_acceleration=False, latency_compensation=comp), G)
     for i in range(data.draw(st.integers(1, 30))):
         t_ns = i * T_NS + data.draw(st.integers(0, 10_000_000))
         assert_finite(est.on_imu(data.draw(imu_samples(t_ns))))

@@ -166,7 +166,9 @@ def test_matlab_appendix_equals_the_estimator() -> None:
     d = _synthetic(120, yaw_varies=False)
     mx, my, _, _ = _matlab(d)
     num = len(d["x"])
-    cfg = EstimationConfig(filter_period_s=T, filter_gain_per_s=K, latency_compensation=False)
+    cfg = EstimationConfig(
+        tilt_acceleration=False, filter_period_s=T, filter_gain_per_s=K, latency_compensation=False
+    )
     est = Estimator(cfg, G)
     mk_yaw = d["yaw"][0] + 1.0
     est.on_pose(Pose2D(-T_NS, d["x"][0], d["y"][0], d["yaw"][0]))
