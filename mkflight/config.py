@@ -82,23 +82,28 @@ class EstimationConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, 
     """Complementary filter (seed §H eq 15-17) and latency compensation (eq 18-20)."""
 
     filter_period_s: Annotated[float, Meta(gt=0, le=1)] = 0.05
-    filter_gain_per_s: Gain = 2.0
-    filter_gain_z_per_s: Gain = 4.0
+    filter_gain_per_s: Gain = 6.7
+    filter_gain_z_per_s: Gain = 20.0
     latency_compensation: bool = True
+    tilt_acceleration: bool = True
+    """Integrate the attitude's horizontal acceleration corrected by the accelerometers
+    (``mkflight.estimation.tilt_accel``) instead of the vibrating accelerometers alone."""
     imu_history_s: Annotated[float, Meta(gt=0, le=5)] = 0.5
 
 
 class ControlConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """Position, velocity, yaw and altitude loops and their limits (SPEC §4, seed §C, J, K)."""
 
-    kp_xy: Gain = 2.5
-    ki_xy: Gain = 0.3
+    kp_xy: Gain = 2.8
+    ki_xy: Gain = 0.05
     kd_xy: Gain = 0.0
     max_speed_mps: Annotated[float, Meta(gt=0, le=5)] = 0.5
-    kp_vxy: Gain = 4.0
-    ki_vxy: Gain = 0.5
-    kd_vxy: Gain = 0.5
+    kp_vxy: Gain = 5.1
+    ki_vxy: Gain = 0.46
+    kd_vxy: Gain = 1.1
     max_tilt_rad: Annotated[float, Meta(gt=0, le=0.6)] = 0.30
+    disturbance_ff: Annotated[float, Meta(ge=0, le=1)] = 0.0
+    """Counter this share of the turbulence the estimator sees (feed-forward, 0..1)."""
     kp_yaw: Gain = 40.0
     ki_yaw: Gain = 0.0
     kd_yaw: Gain = 0.0

@@ -23,7 +23,8 @@ constant                              range            what it models
 ``hover_gas_counts``                  82 .. 115        gas holding the weight at take-off
 ``thrust_tau_s``                      0.03 .. 0.10     motors + ESCs
 ``drag_linear_per_s``                 0.15 .. 0.5      airframe drag
-``gust_accel_std_mps2``               0.1 .. 0.25      turbulence (OU acceleration, x and y)
+``gust_accel_std_mps2``               0.1 .. 0.25      turbulence (OU acceleration, x and y;
+                                                       0.4 of it on z; correlation 0.3 s)
 ``acc_bias_counts`` (each axis)       -10 .. 10        AccNick, AccRoll, AccZ offsets
 ``vibration_counts``                  5 .. 30          motor vibration on AccNick/AccRoll
 ``vibration_z_ratio``                 0.3 .. 0.8       ... on AccZ, as a fraction of that
@@ -94,6 +95,10 @@ ENVELOPE: Final[dict[str, Range]] = {
     "debug_jitter_ticks": Range(0.0, 3.0, "DebugOut up to N FC ticks late"),
     "debug_late_fraction": Range(0.0, 0.02, "... and this share 5-25 ms late"),
 }
+GUST_TAU_S: Final = 0.3
+"""The turbulence's correlation time (s). The issue gives its strength only; over 50
+airframes an oracle's std peaks near 0.15-0.3 s (0.0076-0.0078 m median), so 0.3 s is the
+hardest case for a position loop (1 s: 0.0059 m)."""
 ACC_SCALE_ERROR_XY: Final = 0.02
 ACC_SCALE_ERROR_Z: Final = 0.03
 NOMINAL_VEHICLE: Final = VehicleParams()
@@ -218,6 +223,7 @@ def draw_airframe(seed: int) -> DrawnAirframe:
         thrust_tau_s=d["thrust_tau_s"],
         drag_linear_per_s=d["drag_linear_per_s"],
         gust_accel_std_mps2=d["gust_accel_std_mps2"],
+        gust_tau_s=GUST_TAU_S,
         ground_effect=d["ground_effect"],
         pitch_trim_std_rad=0.0,
         trim_rad=(d["angle_bias_pitch_rad"], d["angle_bias_roll_rad"]),

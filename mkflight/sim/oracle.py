@@ -90,7 +90,7 @@ class OracleGains:
 
 #: The flight's control defaults (config.yaml's control section, copied: the simulator
 #: never reads the flight's config). The search reports them as its reference flight.
-START_GAINS: Final = OracleGains(kp_xy=2.5, ki_xy=0.3, kp_vxy=4.0, ki_vxy=0.5, kd_vxy=0.5)
+START_GAINS: Final = OracleGains(kp_xy=2.8, ki_xy=0.05, kp_vxy=5.1, ki_vxy=0.46, kd_vxy=1.1)
 #: Where the search starts (scaled to the airframe): the best gains of a 200-evaluation
 #: search on the nominal airframe (0.1 s delay + 0.1 s lag) in 0.2 m/s² gusts. On random
 #: airframes a 40-evaluation search from here ends within ~2 % of a 150-evaluation one
