@@ -197,7 +197,8 @@ class Descent:
             gas_factor: the feed-forward's factor now, ``(V_hover / V) / (cos θ cos φ)``
                 (1 when unknown): the hover gas now is ``hover_gas_counts * gas_factor``.
             vz_up_mps: the vertical velocity without the hat (the model-aided dead
-                reckoning of :mod:`mkflight.estimation.vertical`), or None.
+                reckoning of :mod:`mkflight.estimation.vertical`; with the FC's samples
+                unusable, corrected by the hat heights instead), or None.
             height_m: the dead-reckoned height (m, up), or None.
             acc_up_mps2: the level-frame vertical acceleration measured now (bias
                 removed), or None when the FC's samples are unusable.
@@ -221,7 +222,12 @@ class Descent:
         if hat is not None and math.isfinite(hat[1]) and not inertial:
             self.mode = DescentMode.LASER
             h = (hat[0], clamp(hat[1], -MAX_ABS_HEIGHT_M, MAX_ABS_HEIGHT_M))
-            return self._laser_step(t_ns, dt_s, h, hover_now)
+            vz_model = (
+                clamp(vz_up_mps, -MAX_ABS_VZ_MPS, MAX_ABS_VZ_MPS)
+                if vz_up_mps is not None and math.isfinite(vz_up_mps)
+                else None
+            )
+            return self._laser_step(t_ns, dt_s, h, hover_now, vz_model)
         if inertial and vz_up_mps is not None and acc_up_mps2 is not None:
             self.mode = DescentMode.INERTIAL
             vz = clamp(vz_up_mps, -MAX_ABS_VZ_MPS, MAX_ABS_VZ_MPS)
@@ -338,8 +344,18 @@ class Descent:
         return drop if drop < -max(p.fall_mps, FALL_SIGMAS * wander) else None
 
     def _laser_step(
-        self, t_ns: int, dt_s: float, hat: tuple[int, float], hover_now: float
+        self,
+        t_ns: int,
+        dt_s: float,
+        hat: tuple[int, float],
+        hover_now: float,
+        vz_model: float | None,
     ) -> DescentOutput:
+        """On the hat: the PI flies ``vz_model`` if given, else the heights' own rate.
+
+        ``vz_model`` is the thrust model corrected by the hat heights (no delay); the
+        heights' rate is ~0.1 s old.
+        """
         p = self.p
         h_t_ns, h_m = hat
         if self._laser is None or h_t_ns > self._laser[0]:
@@ -356,7 +372,8 @@ class Descent:
                 return DescentOutput(0, on_floor=True, note="floor: the hat height")
         else:
             self._low_since_ns = None
-        return self._out(self._pi(self._laser_vz, dt_s, hover_now))
+        vz = self._laser_vz if vz_model is None else vz_model
+        return self._out(self._pi(vz, dt_s, hover_now))
 
     def _open_step(self, dt_s: float, hover_now: float) -> DescentOutput:
         p = self.p

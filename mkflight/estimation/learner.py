@@ -46,6 +46,8 @@ MIN_LEARN_S: Final = 5.0
 """Steady time before a learned value is used (s)."""
 MIN_REST_S: Final = 0.5
 """Time at rest before the biases are used (s): without vibration they settle at once."""
+UPDATE_EVERY: Final = 5
+"""The learned figures are recomputed every this many samples (they move over seconds)."""
 MAX_SAMPLE_GAP_S: Final = 0.2
 """Two samples further apart are not successive (no difference, no averaging weight)."""
 MAX_DIFF_MPS2: Final = 50.0
@@ -59,17 +61,20 @@ MAX_GAS_COUNTS: Final = 255.0
 class _Mean:
     """An exponential mean over time that starts as a plain mean (no start-up bias)."""
 
-    __slots__ = ("span_s", "tau_s", "value")
+    __slots__ = ("_decay", "span_s", "tau_s", "value")
 
     def __init__(self, tau_s: float) -> None:
         self.tau_s = tau_s
         self.value = 0.0
         self.span_s = 0.0  # time accumulated so far
+        self._decay: tuple[float, float] = (0.0, 0.0)  # (dt, 1 - e^(-dt/τ)) of the last step
 
     def add(self, x: float, dt_s: float) -> None:
         """Add ``x`` held for ``dt_s``: the weight is ``dt/span`` early, ``1-e^(-dt/τ)`` later."""
         self.span_s += dt_s
-        weight = max(dt_s / self.span_s, 1.0 - math.exp(-dt_s / self.tau_s))
+        if self._decay[0] != dt_s:  # the FC's period repeats: one exp per new interval
+            self._decay = (dt_s, 1.0 - math.exp(-dt_s / self.tau_s))
+        weight = max(dt_s / self.span_s, self._decay[1])
         self.value += weight * (x - self.value)
 
 
@@ -118,6 +123,8 @@ class AirframeLearner:
         self._last: tuple[int, Vec3] | None = None  # the previous sample (t_ns, f_body)
         self._steady_s = 0.0
         self._rest_s = 0.0
+        self._learned: LearnedAirframe | None = None  # the last figures (None: out of date)
+        self._since_update = 0
 
     def observe(
         self,
@@ -153,6 +160,9 @@ class AirframeLearner:
         values = (*acc_level_mps2, *f_body_mps2, gas_factor, gas_counts)
         if not all(math.isfinite(v) for v in values) or (steady and gas_factor <= 0.0):
             return
+        self._since_update += 1
+        if self._learned is None or self._since_update >= UPDATE_EVERY:
+            self._learned, self._since_update = None, 0
         if not steady:
             self._rest_s += dt_s
         for mean, a in zip(self._bias, acc_level_mps2, strict=True):
@@ -173,11 +183,13 @@ class AirframeLearner:
         return self._steady_s >= MIN_LEARN_S
 
     def learned(self) -> LearnedAirframe:
-        """The values learned so far (None: not yet).
+        """The values learned so far (None: not yet), refreshed every :data:`UPDATE_EVERY`.
 
         The biases after :data:`MIN_REST_S` at rest or :data:`MIN_LEARN_S` steady, the
         hover gas and the vibration after :data:`MIN_LEARN_S` steady.
         """
+        if self._learned is not None:
+            return self._learned
 
         def clamp(v: float) -> float:
             return max(-MAX_BIAS_MPS2, min(MAX_BIAS_MPS2, v))
@@ -187,6 +199,8 @@ class AirframeLearner:
             bx, by, bz = (clamp(m.value) for m in self._bias)
             bias = (bx, by, bz)
         if not self.ready:
-            return LearnedAirframe(bias, None, None, self._steady_s)
-        nx, ny, nz = (math.sqrt(max(m.value, 0.0)) for m in self._noise)
-        return LearnedAirframe(bias, self._hover.value, (nx, ny, nz), self._steady_s)
+            self._learned = LearnedAirframe(bias, None, None, self._steady_s)
+        else:
+            nx, ny, nz = (math.sqrt(max(m.value, 0.0)) for m in self._noise)
+            self._learned = LearnedAirframe(bias, self._hover.value, (nx, ny, nz), self._steady_s)
+        return self._learned

@@ -50,6 +50,8 @@ GATE_SIGMAS: Final = 4.0
 than :data:`MIN_GATE_MPS2`) counts only that far (Huber-like clipping): a single jolt
 must not become a velocity."""
 MIN_GATE_MPS2: Final = 1.0
+HAT_NOISE_M: Final = 0.005
+"""A hat height's noise as the filter takes it (the median of 84 beams, and its age), m."""
 MAX_GAS_COUNTS: Final = 255.0
 """The gas is a byte."""
 MAX_MODEL_ACCEL_G: Final = 3.0
@@ -110,6 +112,30 @@ class VerticalDeadReckoning:
     def state(self) -> VerticalState:
         """The estimate now."""
         return VerticalState(*self._x)
+
+    def correct_height(self, height_m: float, *, age_s: float = 0.0) -> None:
+        """A hat height taken ``age_s`` ago (m, up): a Kalman update of the height.
+
+        The height is carried to now with the current speed (eq 18-20's one-sample
+        prediction); a reading far from the expectation counts only so far (gated).
+        """
+        if not (math.isfinite(height_m) and math.isfinite(age_s)):
+            return
+        h, v, w = self._x
+        z = height_m + v * max(0.0, min(age_s, MAX_DT_S))
+        p = self._p
+        s = p[0][0] + HAT_NOISE_M**2
+        e = z - h
+        limit = max(GATE_SIGMAS * math.sqrt(s), 0.05)
+        e = max(-limit, min(limit, e))
+        k = (p[0][0] / s, p[1][0] / s, p[2][0] / s)
+        self._x = (h + k[0] * e, v + k[1] * e, w + k[2] * e)
+        row0 = p[0]
+        self._p = (
+            (p[0][0] - k[0] * row0[0], p[0][1] - k[0] * row0[1], p[0][2] - k[0] * row0[2]),
+            (p[1][0] - k[1] * row0[0], p[1][1] - k[1] * row0[1], p[1][2] - k[1] * row0[2]),
+            (p[2][0] - k[2] * row0[0], p[2][1] - k[2] * row0[1], p[2][2] - k[2] * row0[2]),
+        )
 
     def set_velocity(self, vz_up_mps: float) -> None:
         """Take this vertical speed (m/s, up): a probe found the vehicle falling."""

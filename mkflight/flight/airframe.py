@@ -26,7 +26,7 @@ from mkflight.config import Config
 from mkflight.control.altitude import hover_feedforward
 from mkflight.control.descent import Descent, DescentOutput, DescentParams
 from mkflight.estimation.estimator import Estimator
-from mkflight.estimation.learner import AirframeLearner
+from mkflight.estimation.learner import UPDATE_EVERY, AirframeLearner, LearnedAirframe
 from mkflight.estimation.vertical import VerticalDeadReckoning
 from mkflight.msgs import Estimate, ImuSample
 
@@ -38,6 +38,8 @@ BIAS_RATE_MPS3 = 0.02
 """The estimator's bias moves towards the learned one at most this fast (m/s^2 per s)."""
 LEARN_STEP_S = 0.0532
 """The nominal step (a DebugOut every 52 FC ticks), for the rate above."""
+THRUST_TAU_S = 0.05
+"""The motors' lag from gas to thrust the model assumes (an airframe's: 0.03-0.10 s)."""
 LASER_HEIGHT_FRESH_S = 0.3
 """A descent without usable FC samples flies on a hat height at most this old."""
 
@@ -72,6 +74,42 @@ class FlightAirframe:
         self.log: list[str] = []
         """What the descents without a hat height did, for ``flight.json``."""
         self._laser_height: tuple[int, int, float] | None = None  # (arrival, scan t_ns, m)
+        self._gas_lagged: tuple[int, float] | None = None  # the motors' view of the gas
+        self._hat_used_ns: int | None = None  # the last hat height the model took
+        self._hat_model: VerticalDeadReckoning | None = None  # no FC samples: model + hat
+        self._applied: LearnedAirframe | None = None  # the figures last given the estimator
+        self._lag: tuple[float, float] = (0.0, 0.0)  # (dt, the motors' lag factor)
+
+    # ----------------------------------------------------------------- thrust model
+    def thrust_up(
+        self, imu: ImuSample, *, flying: bool, gas_counts: int, integral_gas: float
+    ) -> float | None:
+        """The thrust model's vertical acceleration for this sample (m/s^2, up), or None.
+
+        ``g·(gas_lagged / hover_now - 1)`` with the gas flown (the last command) through the
+        motors' lag and the hover gas now (learned, else the altitude loop's view, scaled
+        like the feed-forward). None unless flying with control and a gas the model can
+        describe (above a third of the hover gas): then the accelerometer alone.
+        """
+        t_ns = imu.t_ns
+        prev = self._gas_lagged
+        if prev is None or not flying or gas_counts <= 0:
+            self._gas_lagged = (t_ns, float(gas_counts))
+            if not flying or gas_counts <= 0:
+                return None
+        else:
+            dt_s = max(0.0, (t_ns - prev[0]) / NS_PER_S)
+            if self._lag[0] != dt_s:  # one exp per new interval
+                self._lag = (dt_s, 1.0 - math.exp(-dt_s / THRUST_TAU_S))
+            self._gas_lagged = (t_ns, prev[1] + (gas_counts - prev[1]) * self._lag[1])
+        factor = gas_factor(self.cfg, imu.pitch_rad, imu.roll_rad, imu.battery_v)
+        if factor is None:
+            return None
+        hover_now = self.hover_gas(factor, integral_gas) * factor
+        gas = self._gas_lagged[1]
+        if not (hover_now > 0.0 and gas > hover_now / 3.0):
+            return None
+        return self.cfg.mk.g_mps2 * (gas / hover_now - 1.0)
 
     # ----------------------------------------------------------------- learning
     def observe(
@@ -117,12 +155,17 @@ class FlightAirframe:
             at_rest=at_rest,
         )
         learned = self.learner.learned()
+        if learned is self._applied:
+            return  # nothing new (the learner refreshes every few samples)
+        self._applied = learned
+        if steady and learned.vibration_mps2 is not None:
+            self.estimator.set_acc_noise(learned.vibration_mps2)
         if at_rest and learned.bias_level_mps2 is not None:  # on the floor: take it at once
             self.estimator.set_acc_bias(learned.bias_level_mps2)
         elif steady and learned.bias_level_mps2 is not None:
             # towards the learned value at a bounded rate: a step in the bias would be a
             # step in the filter's velocity (eq 15-17), i.e. a kick to the loops
-            step = BIAS_RATE_MPS3 * LEARN_STEP_S
+            step = BIAS_RATE_MPS3 * LEARN_STEP_S * UPDATE_EVERY
             now = self.estimator.acc_bias_level
             self.estimator.set_acc_bias(
                 tuple(  # type: ignore[arg-type]
@@ -147,8 +190,12 @@ class FlightAirframe:
 
     # ----------------------------------------------------------------- without the hat
     def acc_up(self, imu: ImuSample, fresh: bool) -> float | None:
-        """This sample's level-frame vertical acceleration, bias removed (m/s^2, up)."""
-        acc_l = self.estimator.last_acc_level
+        """This sample's level-frame vertical acceleration, bias removed (m/s^2, up).
+
+        The accelerometers' own (not the model-aided one the estimator integrates): the
+        descent detects the floor by what the thrust model cannot know.
+        """
+        acc_l = self.estimator.last_raw_acc_level
         if not fresh or acc_l is None or not _finite_imu(imu):
             return None
         a_up = self.estimator.acc_bias_level[2] - acc_l[2]
@@ -205,6 +252,39 @@ class FlightAirframe:
         )
         return replace(est, height_m=v.height_m, vz_up_mps=v.vz_up_mps)
 
+    def _hat_model_vz(
+        self,
+        t_ns: int,
+        imu: ImuSample,
+        est: Estimate,
+        hat: tuple[int, float] | None,
+        gas_counts: int,
+    ) -> float | None:
+        """Without usable FC samples: the thrust model's speed, corrected by each hat height.
+
+        The hat's own rate is ~0.1 s old: too late for the descent's PI.
+        """
+        if hat is None:
+            return None
+        factor = self._factor(imu)
+        gas = float(gas_counts)
+        if self._hat_model is None:
+            self._hat_model = VerticalDeadReckoning(
+                t_ns=t_ns,
+                height_m=hat[1],
+                vz_up_mps=est.vz_up_mps,
+                hover_gas_counts=self.hover_gas(factor, 0.0),
+                gas_counts=gas,
+                noise_mps2=None,
+                g_mps2=self.cfg.mk.g_mps2,
+            )
+        v = self._hat_model
+        v.step(t_ns, gas_counts=gas, gas_factor=factor or 1.0, acc_up_mps2=None)
+        if self._hat_used_ns != hat[0]:
+            self._hat_used_ns = hat[0]
+            v.correct_height(hat[1], age_s=(t_ns - hat[0]) / NS_PER_S)
+        return v.state.vz_up_mps
+
     def descend(
         self,
         t_ns: int,
@@ -213,6 +293,7 @@ class FlightAirframe:
         *,
         inertial: bool,
         integral_gas: float,
+        gas_counts: int,
         since: str,
     ) -> DescentOutput:
         """One step of a landing without the hat height (:mod:`mkflight.control.descent`).
@@ -223,6 +304,7 @@ class FlightAirframe:
             est: the estimate (height and vz from :meth:`without_hat` when the hat is gone).
             inertial: the FC's samples are good; otherwise the hat alone, else nothing.
             integral_gas: the altitude loop's inner integral (the hover gas if not learned).
+            gas_counts: the gas the FC flew during this sample (the last command).
             since: the flight time now, for the log (``t+12.35s``).
         """
         factor = self._factor(imu)
@@ -241,11 +323,12 @@ class FlightAirframe:
         lh = self._laser_height
         if lh is not None and (t_ns - lh[0]) / NS_PER_S <= LASER_HEIGHT_FRESH_S:
             hat = (lh[1], lh[2])
+        vz = est.vz_up_mps if inertial else self._hat_model_vz(t_ns, imu, est, hat, gas_counts)
         mode_before = d.mode
         out = d.step(
             t_ns,
             gas_factor=1.0 if factor is None else factor,
-            vz_up_mps=est.vz_up_mps if inertial else None,
+            vz_up_mps=vz,
             height_m=est.height_m if inertial else None,
             acc_up_mps2=self.acc_up(imu, inertial),
             hat=hat,

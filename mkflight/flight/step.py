@@ -167,6 +167,7 @@ class FlightCore:
             est,
             inertial=inertial,
             integral_gas=self.controller.state.altitude.climb.integral,
+            gas_counts=self.last_command.gas_counts,
             since=self._since_s(t_ns),
         )
         if out.give_up:
@@ -257,9 +258,15 @@ class FlightCore:
         if self._first_ns is None:
             self._first_ns = t_ns
         self._now_ns = max(self._now_ns, t_ns)
-        est = self.estimator.on_imu(imu)
-        fresh = est.t_ns == t_ns  # the estimator took this sample (else: stale estimate)
         flying = self.phase_state.phase in (Phase.TAKEOFF, Phase.HOLD, Phase.LAND)
+        thrust_up = self.airframe.thrust_up(
+            imu,
+            flying=flying and self.last_command.take_control,
+            gas_counts=self.last_command.gas_counts,
+            integral_gas=self.controller.state.altitude.climb.integral,
+        )
+        est = self.estimator.on_imu(imu, thrust_up_mps2=thrust_up)
+        fresh = est.t_ns == t_ns  # the estimator took this sample (else: stale estimate)
         est = self.airframe.without_hat(
             imu,
             est,
