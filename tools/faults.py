@@ -37,9 +37,9 @@ def _short(message: str, limit: int = 90) -> str:
 def table(rows: list[dict[str, Any]]) -> str:
     """The markdown table of the verdicts, in campaign order."""
     lines = [
-        "| fault | outcome | extern control ended by | exit | message "
+        "| fault | outcome | touchdowns m/s | extern control ended by | exit | message "
         "| commands (max tilt / gas, counts) | logs | verdict |",
-        "|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         cmds = "none"
@@ -52,6 +52,7 @@ def table(rows: list[dict[str, Any]]) -> str:
                 for x in (
                     r["what"],
                     r["end"],
+                    ", ".join(f"{v:.2f}" for v in r.get("touchdowns_mps", [])) or "-",
                     r["released_by"] or "-",
                     r["code"],
                     _short(r["message"]) or "-",

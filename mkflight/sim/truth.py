@@ -35,6 +35,22 @@ def touchdown_comment(t_s: float, speed_mps: float) -> str:
     return f"# touchdown {t_s:.4f} {speed_mps:.4f}\n"
 
 
+def parse_touchdowns(text: str) -> list[tuple[float, float]]:
+    """Every ``(t_s, speed_mps)`` of a truth log's ``# touchdown`` lines, in order.
+
+    A malformed touchdown line is skipped (the rows' reader reports the file's damage).
+    """
+    out: list[tuple[float, float]] = []
+    for line in text.splitlines():
+        words = line.split()
+        if len(words) == 4 and words[:2] == ["#", "touchdown"]:
+            try:
+                out.append((float(words[2]), float(words[3])))
+            except ValueError:
+                continue
+    return out
+
+
 class TruthLog:
     """The ``t x y z`` truth file (module docstring), created new and flushed per row."""
 
@@ -91,4 +107,10 @@ class TruthLog:
         self._file.close()
 
 
-__all__ = ["TRUTH_HEADER", "TruthLog", "airframe_comment", "touchdown_comment"]
+__all__ = [
+    "TRUTH_HEADER",
+    "TruthLog",
+    "airframe_comment",
+    "parse_touchdowns",
+    "touchdown_comment",
+]

@@ -47,6 +47,7 @@ from typing import Any, Final
 from mkflight.config import Config
 from mkflight.errors import MkflightError
 from mkflight.logs import load_flight
+from mkflight.sim.truth import parse_touchdowns
 
 REPO: Final = Path(__file__).resolve().parents[2]
 PY: Final = sys.executable
@@ -54,6 +55,7 @@ MAX_AT_ONCE: Final = 4
 FLIGHT_TIMEOUT_S: Final = 120.0
 FC_RELEASE_WAIT_S: Final = 12.0  # the FC's hold counter runs out ~5.2 s after a frame
 LANDED_M: Final = 0.05
+MAX_TOUCHDOWN_MPS: Final = 0.5  # issue 17: every landing, judged on the simulator's truth
 FAULT_AT_S: Final = 2.0  # faults and signals: seconds after the hold began
 CFG: Final = Config()
 
@@ -586,6 +588,7 @@ class Verdict:
     released_by: str
     logs: str
     problems: list[str]
+    touchdowns_mps: list[float] = field(default_factory=list)
 
     def row(self) -> dict[str, Any]:
         return self.__dict__ | {"ok": not self.problems}
@@ -636,6 +639,17 @@ def _truth_heights(folder: Path) -> list[float]:
     return []
 
 
+def _touchdowns(folder: Path) -> list[float]:
+    """The simulator's touchdown speeds (m/s) after the vehicle first rose above 0.3 m."""
+    for path in (folder / "truth.txt", folder.parent / "truth.txt"):
+        if path.is_file():
+            text = path.read_text(encoding="utf-8")
+            rows = [r.split() for r in text.splitlines()[1:] if not r.lstrip().startswith("#")]
+            up = [float(r[0]) for r in rows if len(r) == 4 and float(r[3]) > 0.3]
+            return [v for t, v in parse_touchdowns(text) if up and t > up[0]]
+    return []
+
+
 def judge(flight: Flight) -> Verdict:
     """The verdict on one flight (module docstring)."""
     sc = flight.scenario
@@ -658,6 +672,12 @@ def judge(flight: Flight) -> Verdict:
         end = "landed" if off_height_m < LANDED_M else "released"
     if end not in sc.expect_end:
         problems.append(f"ended {end} (height {final_h:.2f} m), expected {'/'.join(sc.expect_end)}")
+    touchdowns = _touchdowns(flight.folder)
+    if end == "landed":  # our landing (released: the simulated pilot's gas is down, it drops)
+        if not touchdowns:
+            problems.append("landed, but the simulator saw no touchdown after the take-off")
+        elif max(touchdowns) > MAX_TOUCHDOWN_MPS:
+            problems.append(f"touchdown at {max(touchdowns):.2f} m/s > {MAX_TOUCHDOWN_MPS} m/s")
     fc_view = _fc_commands(flight)
     if fc_view is None:
         problems.append("the sim did not say which commands the FC took")
@@ -732,6 +752,7 @@ def judge(flight: Flight) -> Verdict:
         released_by=by,
         logs=logs,
         problems=problems,
+        touchdowns_mps=[round(v, 2) for v in touchdowns],
     )
 
 
