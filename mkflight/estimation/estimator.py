@@ -137,6 +137,15 @@ class Estimator:
         return self._knots[-1].acc_l if self._knots else None
 
     @property
+    def last_acc_residual(self) -> tuple[float, float, float | None] | None:
+        """The newest sample's accelerations less what the models explain, or None.
+
+        Level frame; z None without the thrust model; None without the model-aided
+        acceleration (``estimation.tilt_acceleration``).
+        """
+        return None if self._tilt is None else self._tilt.residual_mps2
+
+    @property
     def last_raw_acc_level(self) -> tuple[float, float, float] | None:
         """The newest sample's level-frame acceleration from the accelerometers alone."""
         return self._raw_acc_l

@@ -120,7 +120,8 @@ class AirframeLearner:
         self._bias = (_Mean(LEARN_TAU_S), _Mean(LEARN_TAU_S), _Mean(LEARN_TAU_S))
         self._hover = _Mean(LEARN_TAU_S)
         self._noise = (_Mean(NOISE_TAU_S), _Mean(NOISE_TAU_S), _Mean(NOISE_TAU_S))
-        self._last: tuple[int, Vec3] | None = None  # the previous sample (t_ns, f_body)
+        self._last: tuple[int, Vec3] | None = None  # the previous sample (t_ns, its source)
+        self._last_kind = True  # the previous sample's source was the body specific force
         self._steady_s = 0.0
         self._rest_s = 0.0
         self._learned: LearnedAirframe | None = None  # the last figures (None: out of date)
@@ -136,6 +137,7 @@ class AirframeLearner:
         gas_counts: float,
         steady: bool,
         at_rest: bool = False,
+        noise_source_mps2: Vec3 | None = None,
     ) -> None:
         """One IMU step: learn from it if ``steady`` (or, for the biases, ``at_rest``).
 
@@ -150,8 +152,16 @@ class AirframeLearner:
             steady: HOLD on a valid laser, no failsafe, slow vertical speed: learn all.
             at_rest: standing on the floor with the motors off before take-off: learn the
                 biases only (no vibration then, so they are exact at once).
+            noise_source_mps2: what the vibration is measured on (default the body
+                specific force): the accelerations less what the attitude and the thrust
+                model explain, whose successive differences are the vibration without the
+                vehicle's own motion (the raw AccZ's read 0.57 for a true 0.32 m/s², the
+                thrust answering the gas).
         """
-        last, self._last = self._last, (t_ns, f_body_mps2)
+        source = f_body_mps2 if noise_source_mps2 is None else noise_source_mps2
+        kind = noise_source_mps2 is None
+        last, self._last = self._last, (t_ns, source)
+        same_kind, self._last_kind = kind == self._last_kind, kind
         if last is None or not (steady or at_rest):
             return
         dt_s = (t_ns - last[0]) / NS_PER_S
@@ -173,7 +183,9 @@ class AirframeLearner:
         hover = gas_counts / gas_factor
         if math.isfinite(hover):
             self._hover.add(max(0.0, min(MAX_GAS_COUNTS, hover)), dt_s)
-        for mean, f, f0 in zip(self._noise, f_body_mps2, last[1], strict=True):
+        for mean, f, f0 in zip(self._noise, source, last[1], strict=True):
+            if not same_kind:  # the source changed: no difference this once
+                break
             diff = max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, f - f0))
             mean.add(0.5 * diff * diff, dt_s)
 

@@ -111,6 +111,9 @@ class TiltAcceleration:
         self._lasting = [0.0, 0.0]
         self._lasting_s = 0.0
         self._q: tuple[float, float] = (0.0, 0.0)  # (dt, the random walk's share of q)
+        self.residual_mps2: tuple[float, float, float | None] = (0.0, 0.0, None)
+        """The last sample's ``measured - model`` per axis (z: None without the thrust
+        model): what the accelerometers add to the models, vibration included."""
 
     @property
     def disturbance_mps2(self) -> tuple[float, float]:
@@ -151,6 +154,7 @@ class TiltAcceleration:
         if use_z and thrust_up_mps2 is not None:
             model[2] = -thrust_up_mps2  # FRD: down positive
         out = [0.0, 0.0, acc_level_mps2[2]]
+        residual: list[float | None] = [None, None, None]
         if fresh and self._q[0] != dt_s:  # 1 - φ², φ = e^(-dt/τ): one exp per new interval
             phi = math.exp(-dt_s / DISTURBANCE_TAU_S)
             self._q = (dt_s, 1.0 - phi * phi)
@@ -158,12 +162,14 @@ class TiltAcceleration:
             if i == 2 and not use_z:
                 continue
             measured = acc_level_mps2[i] - model[i]
+            residual[i] = measured
             if not fresh or (i == 2 and not self._z_model):
                 axis.reset(measured)
             else:
                 axis.update(measured, self._q[1])
             out[i] = model[i] + axis.d
         self._z_model = use_z
+        self.residual_mps2 = (residual[0] or 0.0, residual[1] or 0.0, residual[2])
         if fresh:
             span = self._lasting_s + dt_s
             w = max(dt_s / span, dt_s / LASTING_TAU_S)  # 1 - e^(-x) ≈ x for dt << 20 s

@@ -145,14 +145,20 @@ class FlightAirframe:
             and quiet
             and abs(est.vz_up_mps) < LEARN_MAX_VZ_MPS
         )
+        f_body = (imu.acc_x_mps2, imu.acc_y_mps2, imu.acc_z_mps2)
+        residual = self.estimator.last_acc_residual
+        noise_source = None
+        if residual is not None and residual[2] is not None:
+            noise_source = (residual[0], residual[1], residual[2])
         self.learner.observe(
             imu.t_ns,
             acc_level_mps2=acc_l,
-            f_body_mps2=(imu.acc_x_mps2, imu.acc_y_mps2, imu.acc_z_mps2),
+            f_body_mps2=f_body,
             gas_factor=factor,
             gas_counts=float(gas_counts),
             steady=steady,
             at_rest=at_rest,
+            noise_source_mps2=noise_source,
         )
         learned = self.learner.learned()
         if learned is self._applied:
