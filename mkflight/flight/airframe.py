@@ -42,6 +42,22 @@ THRUST_TAU_S = 0.05
 """The motors' lag from gas to thrust the model assumes (an airframe's: 0.03-0.10 s)."""
 LASER_HEIGHT_FRESH_S = 0.3
 """A descent without usable FC samples flies on a hat height at most this old."""
+RECENT_HOVER_TAU_S = 1.0
+"""Before the learner has a hover gas (its first :data:`~mkflight.estimation.learner.MIN_LEARN_S`
+of steady HOLD), the thrust model takes the gas flown in HOLD, averaged over this (s)..."""
+RECENT_HOVER_MIN_S = 1.0
+"""... once it has this much of it (s); before that, the altitude loop's view."""
+RECENT_MAX_GAP_S = 0.2
+"""A longer gap between samples counts as this long."""
+UNLEARNED_DESCENT = 0.7
+"""Before the hover gas is learned, a descent without the hat flies this fraction of
+``control.land_mps``: the model's error (2-3 % of the hover gas, 0.1-0.2 m/s by the floor
+from 0.6 m) then still touches down below 0.5 m/s (issue 17's early-stall sweep)."""
+RECENT_MAX_ACC_G = 0.3
+"""A sample accelerating harder than this (a jolt) is left out."""
+RECENT_HAT_FRESH_S = 0.15
+"""... and only while the hat's last height is this fresh (s; a scan every 0.1 s): once it
+stalls the altitude loop flies on a stale height, and its gas is no hover gas."""
 
 
 def gas_factor(cfg: Config, pitch_rad: float, roll_rad: float, battery_v: float) -> float | None:
@@ -79,6 +95,7 @@ class FlightAirframe:
         self._hat_model: VerticalDeadReckoning | None = None  # no FC samples: model + hat
         self._applied: LearnedAirframe | None = None  # the figures last given the estimator
         self._lag: tuple[float, float] = (0.0, 0.0)  # (dt, the motors' lag factor)
+        self._recent_hover: tuple[int, float, float] | None = None  # (t_ns, counts, seconds)
 
     # ----------------------------------------------------------------- thrust model
     def thrust_up(
@@ -137,6 +154,22 @@ class FlightAirframe:
         if acc_l is None or factor is None:
             return
         at_rest = on_floor and gas_counts == 0 and est.height_valid
+        lh = self._laser_height
+        if (
+            hold_s is not None
+            and quiet
+            and gas_counts > 0
+            and lh is not None
+            and (imu.t_ns - lh[0]) / NS_PER_S <= RECENT_HAT_FRESH_S
+        ):
+            a_up = self.acc_up(imu, True)
+            gas = self._gas_lagged[1] if self._gas_lagged is not None else float(gas_counts)
+            if a_up is not None and abs(a_up) < RECENT_MAX_ACC_G * self.cfg.mk.g_mps2:
+                # gas = hover·factor·(1 + a/g): the loop's gas is the hover gas only on average
+                # over a level flight; this holds while it climbs or sinks too
+                self._track_recent_hover(
+                    imu.t_ns, gas / (factor * (1.0 + a_up / self.cfg.mk.g_mps2))
+                )
         steady = (
             hold_s is not None
             and hold_s >= LEARN_AFTER_HOLD_S
@@ -180,6 +213,18 @@ class FlightAirframe:
                 )
             )
 
+    def _track_recent_hover(self, t_ns: int, hover_counts: float) -> None:
+        """The gas flown in HOLD, normalised like the feed-forward, averaged over ~1 s."""
+        if not math.isfinite(hover_counts):
+            return
+        prev = self._recent_hover
+        if prev is None:
+            self._recent_hover = (t_ns, hover_counts, 0.0)
+            return
+        dt_s = min(max(0.0, (t_ns - prev[0]) / NS_PER_S), RECENT_MAX_GAP_S)
+        alpha = 1.0 - math.exp(-dt_s / RECENT_HOVER_TAU_S)
+        self._recent_hover = (t_ns, prev[1] + (hover_counts - prev[1]) * alpha, prev[2] + dt_s)
+
     def hat_height(self, arrival_ns: int, scan_t_ns: int, height_m: float | None) -> None:
         """A hat height arrived (None or NaN: none): the descent may fly on it."""
         if height_m is not None and math.isfinite(height_m):
@@ -208,14 +253,19 @@ class FlightAirframe:
         return a_up if math.isfinite(a_up) else None
 
     def hover_gas(self, factor: float | None, integral_gas: float) -> float:
-        """The gas holding the weight at the hover voltage: learned, else the loop's view.
+        """The gas holding the weight at the hover voltage.
 
-        ``integral_gas`` is the altitude loop's inner integral (what it adds to the
-        configured feed-forward now).
+        Learned (:mod:`~mkflight.estimation.learner`, after 5 s of steady HOLD); before
+        that the gas flown in HOLD over the last second (a stall early in HOLD); before
+        that the altitude loop's view: the configured feed-forward plus ``integral_gas``,
+        the loop's inner integral (which takes seconds to find an airframe's 82-115).
         """
         learned = self.learner.learned().hover_gas_counts
         if learned is not None:
             return learned
+        recent = self._recent_hover
+        if recent is not None and recent[2] >= RECENT_HOVER_MIN_S:
+            return recent[1]
         return self.cfg.control.hover_gas + integral_gas / (factor or 1.0)
 
     def _factor(self, imu: ImuSample) -> float | None:
@@ -316,8 +366,13 @@ class FlightAirframe:
         factor = self._factor(imu)
         if self.descent is None:
             vib = self.learner.learned().vibration_mps2
+            params = DescentParams.from_config(self.cfg.control, self.cfg.mk.g_mps2)
+            if self.learner.learned().hover_gas_counts is None:
+                # the thrust model's hover gas is a guess (module docstring): a slower
+                # descent leaves room for its error in the touchdown
+                params = replace(params, descent_mps=params.descent_mps * UNLEARNED_DESCENT)
             self.descent = Descent(
-                DescentParams.from_config(self.cfg.control, self.cfg.mk.g_mps2),
+                params,
                 t_ns=t_ns,
                 vz_up_mps=est.vz_up_mps if inertial else math.nan,
                 hover_gas_counts=self.hover_gas(factor, integral_gas),
