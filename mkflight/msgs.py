@@ -6,8 +6,9 @@ data was received or measured) and SI values with their units in their names.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+import math
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Final
 
 if TYPE_CHECKING:  # numpy stays off the import path of the MK-only commands
     import numpy as np
@@ -34,6 +35,37 @@ class ImuSample:
     battery_v: float
     gas_counts: int = 0
     receiver_level: int = 0
+
+
+MAX_ABS_ANGLE_RAD: Final = math.pi
+"""The FC reports its angles within ±180°: beyond, a value is no attitude."""
+MAX_ABS_ACC_MPS2: Final = 10.0 * 9.81
+"""No flight reads 10 g (a touchdown at 0.5 m/s on the gear: ~1 g); a larger value is
+no specific force worth estimating with."""
+
+
+def plausible_imu(imu: ImuSample) -> ImuSample:
+    """``imu`` with every attitude or acceleration no FC can report replaced by NaN.
+
+    A finite but absurd value (1e300 from a corrupted sample) would pass every
+    ``isfinite`` check and make cosines, feed-forward factors and hat heights finite
+    garbage; as NaN it takes the paths built for unusable samples (SPEC §5: the last safe
+    command, the non-finite failsafe, a level descent).
+    """
+    p, r = imu.pitch_rad, imu.roll_rad
+    ax, ay, az = imu.acc_x_mps2, imu.acc_y_mps2, imu.acc_z_mps2
+    a, g = MAX_ABS_ANGLE_RAD, MAX_ABS_ACC_MPS2
+    if abs(p) <= a and abs(r) <= a and abs(ax) <= g and abs(ay) <= g and abs(az) <= g:
+        return imu  # the common case (NaN fails each comparison and goes below)
+    nan = math.nan
+    return replace(
+        imu,
+        pitch_rad=p if abs(p) <= a else nan,
+        roll_rad=r if abs(r) <= a else nan,
+        acc_x_mps2=ax if abs(ax) <= g else nan,
+        acc_y_mps2=ay if abs(ay) <= g else nan,
+        acc_z_mps2=az if abs(az) <= g else nan,
+    )
 
 
 @dataclass(frozen=True, slots=True, eq=False)

@@ -25,6 +25,7 @@ from mkflight.clock import NS_PER_S
 from mkflight.config import Config
 from mkflight.control.altitude import hover_feedforward
 from mkflight.control.descent import Descent, DescentOutput, DescentParams
+from mkflight.control.limits import gas_to_counts
 from mkflight.estimation.estimator import Estimator
 from mkflight.estimation.learner import UPDATE_EVERY, AirframeLearner, LearnedAirframe
 from mkflight.estimation.vertical import VerticalDeadReckoning
@@ -268,8 +269,25 @@ class FlightAirframe:
             return recent[1]
         return self.cfg.control.hover_gas + integral_gas / (factor or 1.0)
 
+    def blind_gas(self, battery_v: float, integral_gas: float) -> int:
+        """The gas to hold level without data: the hover gas now (counts, within limits)."""
+        factor = gas_factor(self.cfg, 0.0, 0.0, battery_v) or 1.0
+        gas = self.hover_gas(factor, integral_gas) * factor
+        return gas_to_counts(gas if math.isfinite(gas) else 0.0, self.cfg.control.gas_max)
+
     def _factor(self, imu: ImuSample) -> float | None:
-        factor = gas_factor(self.cfg, imu.pitch_rad, imu.roll_rad, imu.battery_v)
+        """The feed-forward factor of a level descent (None: no battery reading).
+
+        The tilt it corrects for is at most the tilt the controllers may command: a wrong
+        attitude must not become gas.
+        """
+        lim = self.cfg.control.max_tilt_rad
+        pitch, roll = imu.pitch_rad, imu.roll_rad  # NaN stays NaN (then: level)
+        if abs(pitch) > lim:
+            pitch = math.copysign(lim, pitch)
+        if abs(roll) > lim:
+            roll = math.copysign(lim, roll)
+        factor = gas_factor(self.cfg, pitch, roll, imu.battery_v)
         if factor is None:  # no attitude (NaN): level, as commanded
             factor = gas_factor(self.cfg, 0.0, 0.0, imu.battery_v)
         return factor

@@ -74,7 +74,7 @@ from mkflight.flight.tasks import (
 )
 from mkflight.mk.link import MkLink
 from mkflight.mk.messages import ExternControl, Ppm
-from mkflight.msgs import Command, ImuSample
+from mkflight.msgs import Command, ImuSample, plausible_imu
 from mkflight.safety.failsafe import StopRequest
 from mkflight.safety.pilot import PPM_PERIOD_S, PilotWatch
 from mkflight.urg.driver import UrgDriver
@@ -379,10 +379,21 @@ class FlightApp:
             )
         )
 
+    def _set_blind_command(self, battery_v: float) -> None:
+        """Tell the link what to send if the DebugOut stops now (FlightCore.blind_command)."""
+        assert self.link is not None
+        blind = self.core.blind_command(battery_v)
+        self.link.set_blind_command(
+            None
+            if blind is None
+            else ExternControl(gas=blind.gas_counts, config=1)  # level, no yaw
+        )
+
     def step(self, sample: ImuSample) -> ImuStepOutput:
         """One DebugOut: laser results in, the step, the command out, then the logs."""
         if self.sample_filter is not None:
             sample = self.sample_filter(sample)
+        sample = plausible_imu(sample)  # the attitude history and the step see the same
         self._attitude.append((sample.t_ns, sample.pitch_rad, sample.roll_rad))
         self._battery_v = sample.battery_v
         self._apply_laser_results(sample.t_ns)
@@ -400,6 +411,7 @@ class FlightApp:
         )
         written0 = self._last_cmd_write_ns
         self._send(out.command)
+        self._set_blind_command(sample.battery_v)
         written = self._last_cmd_write_ns if self._last_cmd_write_ns != written0 else None
         self._ask_sticks(sample.t_ns)
         self.notifier.watchdog()

@@ -54,7 +54,7 @@ from mkflight.estimation.estimator import Estimator
 from mkflight.flight.airframe import FlightAirframe
 from mkflight.logs.table3 import Table3Row
 from mkflight.logs.table4 import Table4Row
-from mkflight.msgs import Command, Estimate, ImuSample, Pose2D
+from mkflight.msgs import Command, Estimate, ImuSample, Pose2D, plausible_imu
 from mkflight.safety.failsafe import (
     Failsafe,
     FailsafeAction,
@@ -149,6 +149,24 @@ class FlightCore:
         out = self.airframe.learned()
         out["handed_in_air"] = self.handed_in_air
         return out
+
+    def blind_command(self, battery_v: float) -> Command | None:
+        """What the FC should fly if its data stops after the last command (None: nothing).
+
+        The FC holds the last command it got until we release (``safety.mk_release_s``);
+        a hover's last gas can be 20 counts off the hover gas (the loop's answer to one
+        noisy sample), which drops the vehicle to the floor within that second. This
+        is level, no yaw, and the hover gas (0 if the last gas was 0).
+        """
+        last = self.last_command
+        if not last.take_control:
+            return None
+        flying = self.phase_state.phase in (Phase.TAKEOFF, Phase.HOLD, Phase.LAND)
+        gas = 0
+        if flying and last.gas_counts > 0:
+            integral = self.controller.state.altitude.climb.integral
+            gas = self.airframe.blind_gas(battery_v, integral)
+        return Command(last.t_ns, 0, 0, 0, gas, take_control=True)
 
     def _descend(
         self, t_ns: int, imu: ImuSample, est: Estimate, *, inertial: bool, take_control: bool
@@ -253,6 +271,7 @@ class FlightCore:
         mk_age_s: float = 0.0,
     ) -> ImuStepOutput:
         """One DebugOut: estimate, failsafe, phase, command (see the module docstring)."""
+        imu = plausible_imu(imu)
         self.counters.imu_steps += 1
         t_ns = imu.t_ns
         if self._first_ns is None:

@@ -333,6 +333,15 @@ class MkLink:
         """Frame number -> send time (ns) of the commands whose confirm is awaited."""
         return self._tx.pending_confirms
 
+    def set_blind_command(self, command: ExternControl | None) -> None:
+        """What the FC should fly if the DebugOut stops: sent once when the data goes stale.
+
+        The flight sets it after each command (level, the hover gas); None sends nothing.
+        Only while we have control, numbered like any command (see
+        :mod:`mkflight.mk.subscription`).
+        """
+        self._rx.blind_command = command
+
     def stale_for_s(self) -> float:
         """Seconds since the last DebugOut (inf before the first)."""
         return self._rx.stale_for_s()

@@ -71,6 +71,7 @@ class LinkStats:
     subscriptions: int = 0
     stale_events: int = 0
     stale_releases: int = 0
+    blind_commands: int = 0
     commands_sent: int = 0
     confirms: int = 0
     confirms_lost: int = 0
@@ -97,6 +98,7 @@ class LinkStats:
             "foreign_frames": self.foreign_frames,
             "stale_events": self.stale_events,
             "stale_releases": self.stale_releases,
+            "blind_commands": self.blind_commands,
             "subscriptions": self.subscriptions,
             "commands_sent": self.commands_sent,
             "superseded_commands": self.superseded_commands,

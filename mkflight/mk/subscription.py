@@ -11,7 +11,10 @@ Safety rules (``mk-serial.md`` §7-8; SPEC §2, §5):
 * The subscription is renewed from :meth:`DebugSubscription.next_sample`, i.e. by the
   consumer asking for its next sample: a stalled control step stops refreshing the FC's
   hold on the last extern command, and the FC falls back to the pilot's sticks.
-* No DebugOut for ``stale_s``: re-subscribe (and ask the version again). Still none after
+* No DebugOut for ``stale_s``: send the blind command once if the flight set one (level,
+  the hover gas: the FC holds the last command it got, and the last one of a hover can
+  be a noisy 77 counts that drops the vehicle before the release), re-subscribe (and ask
+  the version again). Still none after
   ``release_after_stale_s`` while we had control: hand control back (Config = 0) and stop
   renewing for the FC's hold time, so that even an FC whose transmitter died but whose
   receiver works ends extern control.
@@ -20,15 +23,16 @@ Safety rules (``mk-serial.md`` §7-8; SPEC §2, §5):
 from __future__ import annotations
 
 import asyncio
+import contextlib
 from collections.abc import Callable
 
 import structlog
 
 from mkflight.clock import Clock
-from mkflight.errors import LinkError
+from mkflight.errors import CommandRangeError, LinkError
 from mkflight.io.stream import resolve_waiter
 from mkflight.mk.link_types import NS_PER_S, LinkSettings, LinkStats
-from mkflight.mk.messages import DebugOut, debug_request, version_request
+from mkflight.mk.messages import DebugOut, ExternControl, debug_request, version_request
 from mkflight.mk.sender import CommandSender
 from mkflight.mk.units import MkCalibration, imu_from_debug
 from mkflight.msgs import ImuSample
@@ -83,6 +87,8 @@ class DebugSubscription:
         self._stale = False
         self._want_version = False
         self._renew_after_ns = _OFF  # no 'd' before this (after a stale-data release)
+        self.blind_command: ExternControl | None = None
+        """What to send once when the data goes stale while we have control (None: nothing)."""
 
     def subscribe(self) -> None:
         """Send the DebugOut subscription 'd' (also renews it and the FC's hold)."""
@@ -185,6 +191,13 @@ class DebugSubscription:
             self._stale = True
             self._stats.stale_events += 1
             log.warning("mk_data_stale", port=self._port, stale_s=self._settings.stale_s)
+            blind = self.blind_command
+            if blind is not None and self._tx.engaged:
+                # nothing may keep the re-subscription below from going out
+                with contextlib.suppress(LinkError, CommandRangeError):
+                    self._tx.send_extern_control(blind)
+                    self._stats.blind_commands += 1
+                    log.warning("mk_blind_hold", port=self._port, gas=blind.gas)
             self._tx.send("v", version_request())
         self.subscribe()
 

@@ -205,3 +205,8 @@ def test_a_vehicle_that_does_not_move_when_the_gas_falls_rests_on_the_floor() ->
     assert any(e.to_phase is Phase.LANDED and "floor" in e.reason for e in events)
     assert outs[-1].phase is Phase.RELEASED
     assert not core.handed_in_air
+
+
+def test_no_blind_command_before_control_is_taken() -> None:
+    """What the link sends if the data stops: nothing while the pilot flies."""
+    assert FlightCore(Config()).blind_command(12.0) is None

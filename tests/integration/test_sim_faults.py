@@ -48,18 +48,35 @@ def pitch_nan(imu: ImuSample) -> ImuSample:
     return dataclasses.replace(imu, pitch_rad=math.nan)
 
 
+def huge(imu: ImuSample) -> ImuSample:
+    """The fault campaign's ``huge-estimate``: finite, absurd values."""
+    return dataclasses.replace(
+        imu, acc_x_mps2=1e300, acc_y_mps2=-1e300, pitch_rad=1e300, roll_rad=1e300
+    )
+
+
 @pytest.mark.parametrize(
     "faults",
     [
         HoverFaults(from_s=15.0, imu=battery_zero),
         HoverFaults(from_s=15.0, imu=acc_nan),
         HoverFaults(from_s=15.0, imu=pitch_nan),
+        HoverFaults(from_s=15.0, imu=huge),
         HoverFaults(from_s=15.0, drop_height=True),
         HoverFaults(from_s=15.0, drop_pose=True),
         HoverFaults(from_s=15.0, drop_pose=True, drop_height=True),
         HoverFaults(from_s=15.0, until_s=17.0, drop_pose=True, drop_height=True),
     ],
-    ids=["battery-0", "acc-nan", "pitch-nan", "no-height", "no-pose", "no-laser", "stall-2s"],
+    ids=[
+        "battery-0",
+        "acc-nan",
+        "pitch-nan",
+        "huge",
+        "no-height",
+        "no-pose",
+        "no-laser",
+        "stall-2s",
+    ],
 )
 def test_a_fault_in_hold_lands_softly(tmp_path: Path, faults: HoverFaults) -> None:
     r = fly(tmp_path, faults)

@@ -95,6 +95,57 @@ async def test_stale_data_with_control_taken_releases_and_stops_renewing() -> No
     task.cancel()
 
 
+async def test_stale_data_sends_the_blind_command_once_then_releases() -> None:
+    """The FC holds the last command it got: at stale, the flight's level hover goes out.
+
+    Once per stale period (not per re-subscription), only while we have control, and
+    before the release, which still comes.
+    """
+    host, device = memory_pair("host", "fc")
+    fc = FakeFc(device)
+    task = asyncio.create_task(fc.run())
+    settings = LinkSettings(
+        stale_s=0.05, release_after_stale_s=0.3, release_interval_s=0.005, answer_timeout_s=0.5
+    )
+    link = MkLink(host, settings, DEFAULT_CALIBRATION)
+    await link.connect()
+    link.subscribe()
+    await link.next_sample(timeout_s=1.0)
+    link.send_extern_control(ExternControl(nick=30, gas=77, config=1))  # a noisy last gas
+    link.set_blind_command(ExternControl(gas=97, config=1))
+    fc.answer = False
+    with pytest.raises(LinkError, match="no DebugOut"):
+        await link.next_sample(timeout_s=1.0)
+    commands = [ExternControl.decode(f) for f in fc.frames if f.cmd == "b"]
+    blind = [c for c in commands if (c.config, c.nick, c.roll, c.yaw, c.gas) == (1, 0, 0, 0, 97)]
+    assert len(blind) == 1
+    assert link.stats.blind_commands == 1
+    first_release = next(i for i, c in enumerate(commands) if c.config == 0)
+    assert commands.index(blind[0]) < first_release
+    assert link.stats.stale_releases == 1
+    await link.close()
+    task.cancel()
+
+
+async def test_no_blind_command_without_control() -> None:
+    host, device = memory_pair("host", "fc")
+    fc = FakeFc(device)
+    task = asyncio.create_task(fc.run())
+    settings = LinkSettings(stale_s=0.05, release_after_stale_s=0.3, answer_timeout_s=0.5)
+    link = MkLink(host, settings, DEFAULT_CALIBRATION)
+    await link.connect()
+    link.subscribe()
+    await link.next_sample(timeout_s=1.0)
+    link.set_blind_command(ExternControl(gas=97, config=1))  # but control was never taken
+    fc.answer = False
+    with pytest.raises(LinkError, match="no DebugOut"):
+        await link.next_sample(timeout_s=0.3)
+    assert not any(f.cmd == "b" for f in fc.frames)
+    assert link.stats.blind_commands == 0
+    await link.close()
+    task.cancel()
+
+
 async def test_reader_crash_still_releases_and_closes(pair: tuple[MkLink, FakeFc]) -> None:
     """A bug in the reader must not leave the FC under extern control (review S3)."""
     link, fc = pair
