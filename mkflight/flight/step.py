@@ -65,6 +65,12 @@ from mkflight.safety.failsafe import (
 
 TOUCHDOWN_HEIGHT_M = 0.15
 """Below this height in LAND a degenerate scan no longer raises the failsafe."""
+SCAN_AGE_ALLOWANCE_S = 0.1
+"""The estimator judges a pose or height by its SCAN's time, the failsafe by its arrival
+(SPEC §5: no pose for ``safety.laser_stale_s``). A scan is already ~0.06-0.1 s old when
+its result reaches the step, so a threshold of ``laser_stale_s`` on the scan's time left
+one late scan (0.1 s, a loaded CPU) between a hover and a failsafe landing; this is the
+allowance for the scan's own age."""
 MAX_HOLD_OFFSET_M = 1.0
 """The largest HOLD set-point offset :meth:`FlightCore.set_hold_offset` accepts."""
 
@@ -107,8 +113,9 @@ class FlightCore:
 
     def __init__(self, cfg: Config, *, height_m: float | None = None) -> None:
         self.cfg = cfg
+        stale_s = cfg.safety.laser_stale_s + SCAN_AGE_ALLOWANCE_S
         self.estimator = Estimator(
-            cfg.estimation, cfg.mk.g_mps2, pose_stale_s=cfg.safety.laser_stale_s
+            cfg.estimation, cfg.mk.g_mps2, pose_stale_s=stale_s, height_stale_s=stale_s
         )
         self.controller = Controller(cfg.control, cfg.mk)
         self.failsafe = Failsafe(cfg.safety)
