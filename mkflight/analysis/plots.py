@@ -160,14 +160,6 @@ def make_plots(flight: FlightData, out_dir: str | Path) -> list[Path]:
         PlotError: matplotlib is not installed, or ``out_dir`` cannot be written.
     """
     ensure_matplotlib()
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        msg = f"{out}: cannot create the plot folder: {err.strerror or err}"
-        raise PlotError(msg) from err
     figures: list[tuple[str, Figure]] = [
         ("trajectory", _trajectory(flight)),
         ("position", _position(flight)),
@@ -176,6 +168,23 @@ def make_plots(flight: FlightData, out_dir: str | Path) -> list[Path]:
     ]
     if flight.steps is not None:
         figures.append(("battery", _battery(flight.steps)))
+    return save_figures(figures, out_dir)
+
+
+def save_figures(figures: list[tuple[str, Figure]], out_dir: str | Path) -> list[Path]:
+    """Write each ``(name, figure)`` as ``out_dir/name.png`` (folder created); the paths.
+
+    Raises:
+        PlotError: ``out_dir`` or a file in it cannot be written.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        msg = f"{out}: cannot create the plot folder: {err.strerror or err}"
+        raise PlotError(msg) from err
     paths: list[Path] = []
     for name, fig in figures:
         FigureCanvasAgg(fig)

@@ -379,15 +379,10 @@ class FlightApp:
             )
         )
 
-    def _set_blind_command(self, battery_v: float) -> None:
-        """Tell the link what to send if the DebugOut stops now (FlightCore.blind_command)."""
-        assert self.link is not None
-        blind = self.core.blind_command(battery_v)
-        self.link.set_blind_command(
-            None
-            if blind is None
-            else ExternControl(gas=blind.gas_counts, config=1)  # level, no yaw
-        )
+    def blind_command(self) -> ExternControl | None:
+        """What the link sends once if the DebugOut stops (FlightCore.blind_command)."""
+        blind = self.core.blind_command(self._battery_v)
+        return None if blind is None else ExternControl(gas=blind.gas_counts, config=1)
 
     def step(self, sample: ImuSample) -> ImuStepOutput:
         """One DebugOut: laser results in, the step, the command out, then the logs."""
@@ -411,7 +406,6 @@ class FlightApp:
         )
         written0 = self._last_cmd_write_ns
         self._send(out.command)
-        self._set_blind_command(sample.battery_v)
         written = self._last_cmd_write_ns if self._last_cmd_write_ns != written0 else None
         self._ask_sticks(sample.t_ns)
         self.notifier.watchdog()

@@ -42,6 +42,7 @@ async def mk_task(app: FlightApp) -> None:
     # the flight ends (well inside systemd's WatchdogSec = 2 s).
     timeout_s = app.cfg.safety.mk_release_s + 0.3
     await app.before_subscribe()
+    link.set_blind_command(app.blind_command)  # asked only when the data goes stale
     link.subscribe()  # a fresh subscription: pre-flight may have outlasted the last one
     while True:
         try:

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 
 import structlog
 
@@ -333,14 +333,14 @@ class MkLink:
         """Frame number -> send time (ns) of the commands whose confirm is awaited."""
         return self._tx.pending_confirms
 
-    def set_blind_command(self, command: ExternControl | None) -> None:
-        """What the FC should fly if the DebugOut stops: sent once when the data goes stale.
+    def set_blind_command(self, provider: Callable[[], ExternControl | None] | None) -> None:
+        """Who says what the FC should fly if the DebugOut stops (None: nobody).
 
-        The flight sets it after each command (level, the hover gas); None sends nothing.
-        Only while we have control, numbered like any command (see
-        :mod:`mkflight.mk.subscription`).
+        Asked once when the data goes stale (the flight: level, the hover gas now), so
+        nothing is built on the step's path; its answer (None: nothing) is sent only while
+        we have control, numbered like any command (see :mod:`mkflight.mk.subscription`).
         """
-        self._rx.blind_command = command
+        self._rx.blind_command = provider
 
     def stale_for_s(self) -> float:
         """Seconds since the last DebugOut (inf before the first)."""

@@ -87,8 +87,8 @@ class DebugSubscription:
         self._stale = False
         self._want_version = False
         self._renew_after_ns = _OFF  # no 'd' before this (after a stale-data release)
-        self.blind_command: ExternControl | None = None
-        """What to send once when the data goes stale while we have control (None: nothing)."""
+        self.blind_command: Callable[[], ExternControl | None] | None = None
+        """Asked once when the data goes stale while we have control: what to send then."""
 
     def subscribe(self) -> None:
         """Send the DebugOut subscription 'd' (also renews it and the FC's hold)."""
@@ -191,7 +191,7 @@ class DebugSubscription:
             self._stale = True
             self._stats.stale_events += 1
             log.warning("mk_data_stale", port=self._port, stale_s=self._settings.stale_s)
-            blind = self.blind_command
+            blind = self.blind_command() if self.blind_command is not None else None
             if blind is not None and self._tx.engaged:
                 # nothing may keep the re-subscription below from going out
                 with contextlib.suppress(LinkError, CommandRangeError):

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from mkflight.analysis.plots import DPI, PlotError, ensure_matplotlib
+from mkflight.analysis.plots import ensure_matplotlib, save_figures
 from mkflight.sim.envelope import AirframeRun
 from mkflight.sim.envelope_report import CRITERIA, Criteria
 
@@ -121,26 +121,9 @@ def envelope_plots(
         PlotError: matplotlib is not installed, or ``out_dir`` cannot be written.
     """
     ensure_matplotlib()
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        msg = f"{out}: cannot create the plot folder: {err.strerror or err}"
-        raise PlotError(msg) from err
-    paths: list[Path] = []
-    for name, fig in (
+    figures = [
         ("precision", _precision(runs, criteria)),
         ("height", _height(runs, criteria)),
         ("touchdown", _touchdown(runs, criteria)),
-    ):
-        FigureCanvasAgg(fig)
-        path = out / f"{name}.png"
-        try:
-            fig.savefig(path, dpi=DPI)
-        except OSError as err:
-            msg = f"{path}: cannot write: {err.strerror or err}"
-            raise PlotError(msg) from err
-        paths.append(path)
-    return paths
+    ]
+    return save_figures(figures, out_dir)

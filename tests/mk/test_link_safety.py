@@ -26,6 +26,25 @@ def is_release(frame: Frame) -> bool:
     return (c.config, c.nick, c.roll, c.yaw, c.gas) == (0, 0, 0, 0, 0)
 
 
+STALE_SETTINGS = LinkSettings(
+    stale_s=0.05, release_after_stale_s=0.3, release_interval_s=0.005, answer_timeout_s=0.5
+)
+
+
+async def _streaming_link(
+    settings: LinkSettings,
+) -> tuple[MkLink, FakeFc, asyncio.Task[None]]:
+    """A link to a fake FC that has streamed its first DebugOut (stop it with the task)."""
+    host, device = memory_pair("host", "fc")
+    fc = FakeFc(device)
+    task = asyncio.create_task(fc.run())
+    link = MkLink(host, settings, DEFAULT_CALIBRATION)
+    await link.connect()
+    link.subscribe()
+    await link.next_sample(timeout_s=1.0)
+    return link, fc, task
+
+
 async def test_commands_that_take_control_are_refused_after_release(
     pair: tuple[MkLink, FakeFc],
 ) -> None:
@@ -68,16 +87,8 @@ async def test_close_wins_over_a_task_still_sending_commands(
 
 async def test_stale_data_with_control_taken_releases_and_stops_renewing() -> None:
     """An FC whose TX died but RX works must not hold the last command (review S2)."""
-    host, device = memory_pair("host", "fc")
-    fc = FakeFc(device)
-    task = asyncio.create_task(fc.run())
-    settings = LinkSettings(
-        stale_s=0.05, release_after_stale_s=0.3, release_interval_s=0.005, answer_timeout_s=0.5
-    )
-    link = MkLink(host, settings, DEFAULT_CALIBRATION)
-    await link.connect()
-    link.subscribe()
-    await link.next_sample(timeout_s=1.0)
+    settings = STALE_SETTINGS
+    link, fc, task = await _streaming_link(settings)
     link.send_extern_control(ExternControl(nick=30, gas=110, config=1))
     fc.answer = False  # the FC's transmitter dies; it still receives
     with pytest.raises(LinkError, match="no DebugOut"):
@@ -101,18 +112,10 @@ async def test_stale_data_sends_the_blind_command_once_then_releases() -> None:
     Once per stale period (not per re-subscription), only while we have control, and
     before the release, which still comes.
     """
-    host, device = memory_pair("host", "fc")
-    fc = FakeFc(device)
-    task = asyncio.create_task(fc.run())
-    settings = LinkSettings(
-        stale_s=0.05, release_after_stale_s=0.3, release_interval_s=0.005, answer_timeout_s=0.5
-    )
-    link = MkLink(host, settings, DEFAULT_CALIBRATION)
-    await link.connect()
-    link.subscribe()
-    await link.next_sample(timeout_s=1.0)
+    settings = STALE_SETTINGS
+    link, fc, task = await _streaming_link(settings)
     link.send_extern_control(ExternControl(nick=30, gas=77, config=1))  # a noisy last gas
-    link.set_blind_command(ExternControl(gas=97, config=1))
+    link.set_blind_command(lambda: ExternControl(gas=97, config=1))
     fc.answer = False
     with pytest.raises(LinkError, match="no DebugOut"):
         await link.next_sample(timeout_s=1.0)
@@ -128,15 +131,8 @@ async def test_stale_data_sends_the_blind_command_once_then_releases() -> None:
 
 
 async def test_no_blind_command_without_control() -> None:
-    host, device = memory_pair("host", "fc")
-    fc = FakeFc(device)
-    task = asyncio.create_task(fc.run())
-    settings = LinkSettings(stale_s=0.05, release_after_stale_s=0.3, answer_timeout_s=0.5)
-    link = MkLink(host, settings, DEFAULT_CALIBRATION)
-    await link.connect()
-    link.subscribe()
-    await link.next_sample(timeout_s=1.0)
-    link.set_blind_command(ExternControl(gas=97, config=1))  # but control was never taken
+    link, fc, task = await _streaming_link(STALE_SETTINGS)
+    link.set_blind_command(lambda: ExternControl(gas=97, config=1))  # no control taken
     fc.answer = False
     with pytest.raises(LinkError, match="no DebugOut"):
         await link.next_sample(timeout_s=0.3)
