@@ -58,7 +58,7 @@ MAX_GAS_COUNTS: Final = 255.0
 """A learned bias beyond this is not a bias (a stuck sensor): it is clamped."""
 
 
-class _Mean:
+class TimeMean:
     """An exponential mean over time that starts as a plain mean (no start-up bias)."""
 
     __slots__ = ("_decay", "span_s", "tau_s", "value")
@@ -117,9 +117,9 @@ class AirframeLearner:
     def __init__(self, hover_voltage_v: float) -> None:
         """Normalise the hover gas to ``hover_voltage_v`` (``control.hover_voltage_v``)."""
         self._hover_voltage_v = hover_voltage_v
-        self._bias = (_Mean(LEARN_TAU_S), _Mean(LEARN_TAU_S), _Mean(LEARN_TAU_S))
-        self._hover = _Mean(LEARN_TAU_S)
-        self._noise = (_Mean(NOISE_TAU_S), _Mean(NOISE_TAU_S), _Mean(NOISE_TAU_S))
+        self._bias = (TimeMean(LEARN_TAU_S), TimeMean(LEARN_TAU_S), TimeMean(LEARN_TAU_S))
+        self._hover = TimeMean(LEARN_TAU_S)
+        self._noise = (TimeMean(NOISE_TAU_S), TimeMean(NOISE_TAU_S), TimeMean(NOISE_TAU_S))
         self._last: tuple[int, Vec3] | None = None  # the previous sample (t_ns, its source)
         self._last_kind = True  # the previous sample's source was the body specific force
         self._steady_s = 0.0

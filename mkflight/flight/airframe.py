@@ -27,7 +27,12 @@ from mkflight.control.altitude import hover_feedforward
 from mkflight.control.descent import Descent, DescentOutput, DescentParams
 from mkflight.control.limits import gas_to_counts
 from mkflight.estimation.estimator import Estimator
-from mkflight.estimation.learner import UPDATE_EVERY, AirframeLearner, LearnedAirframe
+from mkflight.estimation.learner import (
+    UPDATE_EVERY,
+    AirframeLearner,
+    LearnedAirframe,
+    TimeMean,
+)
 from mkflight.estimation.vertical import VerticalDeadReckoning
 from mkflight.msgs import Estimate, ImuSample
 
@@ -96,7 +101,8 @@ class FlightAirframe:
         self._hat_model: VerticalDeadReckoning | None = None  # no FC samples: model + hat
         self._applied: LearnedAirframe | None = None  # the figures last given the estimator
         self._lag: tuple[float, float] = (0.0, 0.0)  # (dt, the motors' lag factor)
-        self._recent_hover: tuple[int, float, float] | None = None  # (t_ns, counts, seconds)
+        self._recent_hover = TimeMean(RECENT_HOVER_TAU_S)  # the gas flown in HOLD
+        self._recent_t_ns: int | None = None  # its last sample's time
 
     # ----------------------------------------------------------------- thrust model
     def thrust_up(
@@ -158,6 +164,7 @@ class FlightAirframe:
         lh = self._laser_height
         if (
             hold_s is not None
+            and self.learner.learned().hover_gas_counts is None  # once learned: not needed
             and quiet
             and gas_counts > 0
             and lh is not None
@@ -216,15 +223,12 @@ class FlightAirframe:
 
     def _track_recent_hover(self, t_ns: int, hover_counts: float) -> None:
         """The gas flown in HOLD, normalised like the feed-forward, averaged over ~1 s."""
-        if not math.isfinite(hover_counts):
+        last, self._recent_t_ns = self._recent_t_ns, t_ns
+        if last is None or not math.isfinite(hover_counts):
             return
-        prev = self._recent_hover
-        if prev is None:
-            self._recent_hover = (t_ns, hover_counts, 0.0)
-            return
-        dt_s = min(max(0.0, (t_ns - prev[0]) / NS_PER_S), RECENT_MAX_GAP_S)
-        alpha = 1.0 - math.exp(-dt_s / RECENT_HOVER_TAU_S)
-        self._recent_hover = (t_ns, prev[1] + (hover_counts - prev[1]) * alpha, prev[2] + dt_s)
+        dt_s = min(max(0.0, (t_ns - last) / NS_PER_S), RECENT_MAX_GAP_S)
+        if dt_s > 0.0:
+            self._recent_hover.add(hover_counts, dt_s)
 
     def hat_height(self, arrival_ns: int, scan_t_ns: int, height_m: float | None) -> None:
         """A hat height arrived (None or NaN: none): the descent may fly on it."""
@@ -265,8 +269,8 @@ class FlightAirframe:
         if learned is not None:
             return learned
         recent = self._recent_hover
-        if recent is not None and recent[2] >= RECENT_HOVER_MIN_S:
-            return recent[1]
+        if recent.span_s >= RECENT_HOVER_MIN_S:
+            return recent.value
         return self.cfg.control.hover_gas + integral_gas / (factor or 1.0)
 
     def blind_gas(self, battery_v: float, integral_gas: float) -> int:
