@@ -79,7 +79,7 @@ class LaserConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_on
 
 
 class EstimationConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """Complementary filter (seed §H eq 15-17) and latency compensation (eq 18-20)."""
+    """The velocity filter (seed §H eq 15-17, or a Kalman filter) and latency compensation."""
 
     filter_period_s: Annotated[float, Meta(gt=0, le=1)] = 0.05
     filter_gain_per_s: Gain = 6.7
@@ -89,12 +89,23 @@ class EstimationConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, 
     """Integrate the attitude's horizontal acceleration corrected by the accelerometers
     (``mkflight.estimation.tilt_accel``) instead of the vibrating accelerometers alone."""
     imu_history_s: Annotated[float, Meta(gt=0, le=5)] = 0.5
+    filter: Literal["kalman", "complementary"] = "kalman"
+    """``kalman``: position, velocity and disturbance per axis with gains from the noises
+    (``mkflight.estimation.kalman``); ``complementary``: eq 15-17 with the gains k above."""
+    pose_noise_m: Annotated[float, Meta(gt=0, le=0.5)] = 0.002
+    """The scan matcher's position noise at hover (the Kalman filter's trust in it), m."""
+    height_noise_m: Annotated[float, Meta(gt=0, le=0.5)] = 0.0005
+    """The hat height's weight in the Kalman filter, as a noise (m): below the hat's own
+    (~1.5 mm, the median of its beams) because the thrust model's errors are slow, not
+    white; chosen on the airframe envelope."""
+    model_noise_mps2: Annotated[float, Meta(gt=0, le=10)] = 0.3
+    """White noise on the model's acceleration (attitude, thrust), m/s^2 per sample."""
 
 
 class ControlConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """Position, velocity, yaw and altitude loops and their limits (SPEC §4, seed §C, J, K)."""
 
-    kp_xy: Gain = 2.8
+    kp_xy: Gain = 2.0
     ki_xy: Gain = 0.05
     kd_xy: Gain = 0.0
     max_speed_mps: Annotated[float, Meta(gt=0, le=5)] = 0.5

@@ -41,9 +41,11 @@ gas or vibration leaves its keys as they are):
   not the base config's: tuning again from a config this wrote gives the same gains
   instead of scaling twice. Each is then kept within a factor :data:`MAX_GAIN_FACTOR`
   (2.5) of the base config's value (a gain set to 0 stays 0) and within its config range.
-* ``estimation.filter_gain_z_per_s`` from the AccZ vibration. The vertical complementary
-  filter is a steady-state Kalman filter whose gain is ``sqrt(q / r)``: ``q`` the
-  accelerometer's noise (variance), ``r`` the laser height rate's. The laser is the same
+* ``estimation.filter_gain_z_per_s`` from the AccZ vibration, with
+  ``estimation.filter: complementary`` only (the Kalman filter takes the vibration the
+  flight measures as its noise and needs no gain). The vertical complementary filter is
+  a steady-state Kalman filter whose gain is ``sqrt(q / r)``: ``q`` the accelerometer's
+  noise (variance), ``r`` the laser height rate's. The laser is the same
   on every airframe; the vibration is not. So the gain scales with the noise's standard
   deviation: ``default * noise_z / NOMINAL_NOISE_Z_MPS2``, where the nominal figure is
   what :func:`~mkflight.analysis.identify.identify` measures on a flight of the nominal
@@ -183,7 +185,8 @@ def tuning(ident: Identification, cfg: Config) -> list[Tuned]:
         why = f"holds the weight at {cfg.control.hover_voltage_v:g} V, level"
         out.append(Tuned("control.hover_gas", cfg.control.hover_gas, gas, why))
     noise_z = ident.vibration_mps2[2]
-    if math.isfinite(noise_z) and noise_z > 0:
+    complementary = cfg.estimation.filter == "complementary"  # the Kalman filter measures it
+    if complementary and math.isfinite(noise_z) and noise_z > 0:
         ref = REFERENCE.estimation.filter_gain_z_per_s
         base = cfg.estimation.filter_gain_z_per_s
         k = ref * _clamp(noise_z / NOMINAL_NOISE_Z_MPS2, *FILTER_GAIN_Z_RATIO_LIMITS)

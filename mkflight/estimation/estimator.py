@@ -5,8 +5,9 @@ A pure, stateful core: the flight step calls :meth:`Estimator.on_imu` for each D
 time the scan was *taken*, ~100 ms before it arrives) and :meth:`Estimator.on_height` for
 each hat height. No clock is read: every time comes in as ``t_ns``.
 
-How it works. The history is a list of *knots*: each IMU sample is one, holding its
-level-frame acceleration (held until the next knot, the ``a(t)`` of eq 15-17), the MK's
+How it works (the complementary filter). The history is a list of *knots*
+(:mod:`mkflight.estimation.knots`): each IMU sample is one, holding its level-frame
+acceleration (held until the next knot, the ``a(t)`` of eq 15-17), the MK's
 gyro yaw and the state after it. A pose (or height) becomes an *anchor* at its scan time:
 the knot there (inserted if it falls between two samples) takes the laser position as
 its position and the laser velocity as the filter's measurement; every later knot is then
@@ -19,9 +20,18 @@ compares like with like. A scan older than the history falls back on the one-sam
 prediction of eq 18-20; ``latency_compensation: false`` uses each pose as if it were
 current (the seed's behaviour).
 
-The horizontal acceleration integrated is, by default, the attitude's with the
-accelerometers' view of what it misses (:mod:`mkflight.estimation.tilt_accel`:
-``estimation.tilt_acceleration``), which keeps the motors' vibration out of the velocity.
+The filter (``estimation.filter``). By default a Kalman filter per axis
+(:mod:`mkflight.estimation.kalman`): position, velocity and the disturbance the model
+misses; the model's acceleration (the attitude's horizontally, the thrust model's
+vertically in flight: ``estimation.tilt_acceleration``) is its input, the accelerometers'
+residual and the laser's position (or the hat height) its measurements, with the
+vibration measured in flight as the residual's noise. Each knot then holds the filter's
+state and covariance after its own measurements, and a pose at ``t_scan`` re-filters the
+knots since with it: the same estimate as if it had arrived in time. ``complementary`` is
+eq 15-17 as described above; with ``tilt_acceleration`` the acceleration it integrates is
+the attitude's plus the accelerometers' view of what it misses
+(:mod:`mkflight.estimation.tilt_accel`), which keeps the motors' vibration out of the
+velocity; without, it is the seed's filter.
 
 Non-finite or implausible input is rejected and counted: NaN never enters the state.
 """
@@ -30,49 +40,49 @@ from __future__ import annotations
 
 import bisect
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
+from typing import Final
 
 from mkflight.clock import NS_PER_S
 from mkflight.config import EstimationConfig
 from mkflight.estimation.filter import (
     LaserVelocity,
-    complementary_step,
     laser_velocity,
     rate_of_change,
 )
+from mkflight.estimation.kalman import (
+    AxisNoise,
+    AxisState,
+    update_position,
+)
+from mkflight.estimation.knots import (
+    Knot,
+    Vec2,
+    Vec3,
+    complementary_knot,
+    finite,
+    kalman_knot,
+    knot_finite,
+)
 from mkflight.estimation.records import EstimatorCounters, LaserStep
-from mkflight.estimation.tilt_accel import TiltAcceleration
+from mkflight.estimation.tilt_accel import (
+    DEFAULT_NOISE_MPS2,
+    DISTURBANCE_STD_MPS2,
+    DISTURBANCE_TAU_S,
+    DISTURBANCE_Z_STD_MPS2,
+    LASTING_TAU_S,
+    MIN_NOISE_MPS2,
+    TiltAcceleration,
+    tilt_acceleration,
+)
 from mkflight.frames import body_to_world, level_acceleration, world_to_body, wrap_pi
 from mkflight.msgs import Estimate, ImuSample, Pose2D
 
-Vec2 = tuple[float, float]
-
-
-@dataclass(frozen=True, slots=True)
-class _Knot:
-    """One point of the history: the state at ``t_ns`` and the inputs held from it."""
-
-    t_ns: int
-    acc_l: tuple[float, float, float]  # level frame FRD, m/s^2, held until the next knot
-    mk_yaw_rad: float
-    x_m: float = 0.0
-    y_m: float = 0.0
-    vx_mps: float = 0.0
-    vy_mps: float = 0.0
-    h_m: float = 0.0
-    vz_up_mps: float = 0.0
-    meas_w: Vec2 | None = None  # laser velocity (W) at this knot, the filter's measurement
-    meas_z: float | None = None  # hat height rate (up), m/s
-    fix_xy: Vec2 | None = None  # set: this knot is a pose anchor
-    fix_h: float | None = None  # set: this knot is a height anchor
-
-
-def _finite(*values: float) -> bool:
-    return all(math.isfinite(v) for v in values)
-
-
-def _knot_finite(k: _Knot) -> bool:
-    return _finite(k.x_m, k.y_m, k.vx_mps, k.vy_mps, k.h_m, k.vz_up_mps)
+START_V_STD_MPS: Final = 0.5
+"""The Kalman filter's first velocity is 0, known to this (a vehicle on the floor)."""
+MISS_V_STD_MPS: Final = 0.1
+"""A pose older than the history is carried to now with the velocity estimated then; its
+noise grows by this much per second of age."""
 
 
 class Estimator:
@@ -109,7 +119,7 @@ class Estimator:
         self._max_imu_gap_ns = round(max_imu_gap_s * NS_PER_S)
         self._max_abs_acc_mps2 = max_abs_acc_mps2
         self._max_abs_position_m = max_abs_position_m
-        self._knots: list[_Knot] = []
+        self._knots: list[Knot] = []
         self._yaw_offset_rad: float | None = None  # W yaw = MK yaw + offset; None: no pose yet
         self._height_started = False
         self._last_pose: Pose2D | None = None
@@ -121,8 +131,15 @@ class Estimator:
         self._bias_l: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._k_xy = cfg.filter_gain_per_s
         self._k_z = cfg.filter_gain_z_per_s
-        self._tilt = TiltAcceleration(g_mps2) if cfg.tilt_acceleration else None
+        self._kalman = cfg.filter == "kalman"
+        use_tilt = cfg.tilt_acceleration and not self._kalman
+        self._tilt = TiltAcceleration(g_mps2) if use_tilt else None
         self._raw_acc_l: tuple[float, float, float] | None = None
+        noise = DEFAULT_NOISE_MPS2
+        self._noise_xy = self._axis_noise(noise, DISTURBANCE_STD_MPS2)
+        self._noise_z = self._axis_noise(noise, DISTURBANCE_Z_STD_MPS2)
+        self._lasting_w = (0.0, 0.0)  # the Kalman disturbance's lasting part (W)
+        self._lasting_s = 0.0
 
     # ----------------------------------------------------------------- public API
 
@@ -133,8 +150,16 @@ class Estimator:
 
     @property
     def last_acc_level(self) -> tuple[float, float, float] | None:
-        """The newest sample's level-frame acceleration (FRD, no bias removed), or None."""
-        return self._knots[-1].acc_l if self._knots else None
+        """The newest sample's level-frame acceleration (FRD, no bias removed), or None.
+
+        Whose mean over a hover is the bias :meth:`set_acc_bias` takes: the acceleration
+        the complementary filter integrates, or the accelerometers' own for the Kalman
+        filter (the bias is theirs: it is removed from their residual, not from the
+        model, whose own offsets the disturbance takes up).
+        """
+        if not self._knots:
+            return None
+        return self._raw_acc_l if self._kalman else self._knots[-1].acc_l
 
     @property
     def last_acc_residual(self) -> tuple[float, float, float | None] | None:
@@ -143,6 +168,8 @@ class Estimator:
         Level frame; z None without the thrust model; None without the model-aided
         acceleration (``estimation.tilt_acceleration``).
         """
+        if self._kalman:
+            return self._knots[-1].res_l if self._knots else None
         return None if self._tilt is None else self._tilt.residual_mps2
 
     @property
@@ -154,6 +181,11 @@ class Estimator:
     def acc_bias_level(self) -> tuple[float, float, float]:
         """The bias subtracted from every level-frame acceleration (FRD, m/s^2)."""
         return self._bias_l
+
+    @property
+    def acc_noise_used(self) -> tuple[float, float]:
+        """The Kalman filter's accelerometer noise ``(x and y, z)`` in use, m/s^2."""
+        return self._noise_xy.acc_std, self._noise_z.acc_std
 
     @property
     def filter_gains(self) -> tuple[float, float]:
@@ -170,9 +202,27 @@ class Estimator:
         self._bias_l = (bx, by, bz)
 
     def set_acc_noise(self, noise_mps2: tuple[float, float, float]) -> None:
-        """The accelerometers' measured noise (x, y, z), for the model-aided acceleration."""
+        """The accelerometers' measured noise (x, y, z), for the model-aided acceleration.
+
+        The Kalman filter takes the mean variance of x and y for both world axes (the
+        heading turns them into each other); non-finite values are kept as they were.
+        """
         if self._tilt is not None:
             self._tilt.set_noise(*noise_mps2)
+        nx, ny, nz = noise_mps2
+        if math.isfinite(nx) and math.isfinite(ny):
+            xy = math.sqrt(0.5 * (max(nx, MIN_NOISE_MPS2) ** 2 + max(ny, MIN_NOISE_MPS2) ** 2))
+            self._noise_xy = self._axis_noise(xy, DISTURBANCE_STD_MPS2)
+        if math.isfinite(nz):
+            self._noise_z = self._axis_noise(max(nz, MIN_NOISE_MPS2), DISTURBANCE_Z_STD_MPS2)
+
+    def _axis_noise(self, acc_std: float, disturbance_std: float) -> AxisNoise:
+        return AxisNoise(
+            disturbance_std=disturbance_std,
+            disturbance_tau_s=DISTURBANCE_TAU_S,
+            model_std=self._cfg.model_noise_mps2,
+            acc_std=acc_std,
+        )
 
     def set_filter_gains(self, k_xy_per_s: float, k_z_per_s: float) -> None:
         """Set the complementary filter's gains k (eq 15-17), 1/s; non-finite or < 0: kept."""
@@ -195,20 +245,24 @@ class Estimator:
         flight step's, in flight), with ``estimation.tilt_acceleration``.
         """
         f = (imu.acc_x_mps2, imu.acc_y_mps2, imu.acc_z_mps2)
-        if not _finite(imu.pitch_rad, imu.roll_rad, imu.yaw_rad, *f) or any(
+        if not finite(imu.pitch_rad, imu.roll_rad, imu.yaw_rad, *f) or any(
             abs(v) > self._max_abs_acc_mps2 for v in f
         ):
             self._counts["imu_rejected"] += 1
             return self.estimate()
         acc_l = level_acceleration(*f, imu.pitch_rad, imu.roll_rad, self._g_mps2)
         self._raw_acc_l = acc_l
-        if self._tilt is not None and (not self._knots or imu.t_ns > self._knots[-1].t_ns):
-            acc_l = self._tilt.blend(
-                imu.t_ns, acc_l, imu.pitch_rad, imu.roll_rad, thrust_up_mps2=thrust_up_mps2
-            )
         yaw = wrap_pi(imu.yaw_rad)
+        if self._kalman:
+            new = self._model_knot(imu, acc_l, yaw, thrust_up_mps2)
+        else:
+            if self._tilt is not None and (not self._knots or imu.t_ns > self._knots[-1].t_ns):
+                acc_l = self._tilt.blend(
+                    imu.t_ns, acc_l, imu.pitch_rad, imu.roll_rad, thrust_up_mps2=thrust_up_mps2
+                )
+            new = Knot(imu.t_ns, acc_l, yaw)
         if not self._knots:
-            self._knots.append(_Knot(imu.t_ns, acc_l, yaw))
+            self._knots.append(new)
             self._apply_pending()
             return self.estimate()
         last = self._knots[-1]
@@ -217,17 +271,46 @@ class Estimator:
             return self.estimate()
         if imu.t_ns - last.t_ns > self._max_imu_gap_ns:
             self._counts["imu_gaps"] += 1
-        knot = self._propagate(last, _Knot(imu.t_ns, acc_l, yaw))
-        if not _knot_finite(knot):
+        knot = self._propagate(last, new)
+        if not knot_finite(knot):
             self._counts["imu_rejected"] += 1
             return self.estimate()
         self._knots.append(knot)
         self._trim()
+        if self._kalman:
+            self._track_lasting(knot, (knot.t_ns - last.t_ns) / NS_PER_S)
         return self.estimate()
+
+    def _model_knot(
+        self, imu: ImuSample, acc_l: Vec3, yaw: float, thrust_up_mps2: float | None
+    ) -> Knot:
+        """The Kalman filter's knot: the model's acceleration and the residual measured.
+
+        x, y: the attitude's (``estimation.tilt_acceleration``; else the accelerometers'
+        as the model, no residual); z: the thrust model's when the flight step gives it.
+        """
+        if not self._cfg.tilt_acceleration:
+            return Knot(imu.t_ns, acc_l, yaw)
+        ax, ay = tilt_acceleration(imu.pitch_rad, imu.roll_rad, self._g_mps2)
+        if thrust_up_mps2 is not None and math.isfinite(thrust_up_mps2):
+            mz: float = -thrust_up_mps2  # FRD: down positive
+            res = (acc_l[0] - ax, acc_l[1] - ay, acc_l[2] - mz)
+            return Knot(imu.t_ns, (ax, ay, mz), yaw, res_l=res, z_model=True)
+        return Knot(imu.t_ns, (ax, ay, acc_l[2]), yaw, res_l=(acc_l[0] - ax, acc_l[1] - ay, None))
+
+    def _track_lasting(self, k: Knot, dt_s: float) -> None:
+        """The disturbance's lasting part (its mean over ``LASTING_TAU_S``), for ``ax_ext``."""
+        if k.kx is None or k.ky is None or not dt_s > 0.0:
+            return
+        span = self._lasting_s + dt_s
+        w = max(dt_s / span, dt_s / LASTING_TAU_S)
+        lx, ly = self._lasting_w
+        self._lasting_w = (lx + w * (k.kx.d - lx), ly + w * (k.ky.d - ly))
+        self._lasting_s = span
 
     def on_pose(self, pose: Pose2D) -> None:
         """Correct with a laser pose stamped at its scan time (eq 15-16, 18-20)."""
-        if not _finite(pose.x_m, pose.y_m, pose.yaw_rad) or (
+        if not finite(pose.x_m, pose.y_m, pose.yaw_rad) or (
             max(abs(pose.x_m), abs(pose.y_m)) > self._max_abs_position_m
         ):
             self._counts["pose_rejected"] += 1
@@ -253,7 +336,7 @@ class Estimator:
         if height_m is None:
             self._counts["height_missing"] += 1
             return
-        if not _finite(height_m) or abs(height_m) > self._max_abs_position_m:
+        if not finite(height_m) or abs(height_m) > self._max_abs_position_m:
             self._counts["height_rejected"] += 1
             return
         prev = self._last_height
@@ -291,6 +374,8 @@ class Estimator:
         ax_ext = ay_ext = 0.0
         if self._tilt is not None and offset is not None:
             ax_ext, ay_ext = body_to_world(*self._tilt.turbulence_mps2, yaw)
+        elif self._kalman and self._cfg.tilt_acceleration and k.kx is not None and k.ky is not None:
+            ax_ext, ay_ext = k.kx.d - self._lasting_w[0], k.ky.d - self._lasting_w[1]
         return Estimate(
             k.t_ns, k.x_m, k.y_m, yaw, k.h_m, k.vx_mps, k.vy_mps, k.vz_up_mps,
             pose_valid, height_valid, ax_ext, ay_ext,
@@ -304,50 +389,47 @@ class Estimator:
             return self._cfg.filter_period_s
         return (t1_ns - t0_ns) / NS_PER_S
 
-    def _acc_w(self, k: _Knot) -> tuple[float, float, float]:
+    def _acc_w(self, k: Knot) -> tuple[float, float, float]:
         """The knot's held acceleration in W, bias removed: x, y (needs the yaw offset), z up."""
         b = self._bias_l
         yaw = k.mk_yaw_rad + (self._yaw_offset_rad or 0.0)
         ax, ay = body_to_world(k.acc_l[0] - b[0], k.acc_l[1] - b[1], yaw)
         return ax, ay, b[2] - k.acc_l[2]
 
-    def _propagate(self, k: _Knot, nxt: _Knot) -> _Knot:
-        """``nxt`` with its state stepped from ``k`` (eq 15-17; trapezoidal position).
+    def _model_w(self, k: Knot) -> Vec3:
+        """The Kalman filter's input at ``k`` in W (z up).
 
-        Eq 15 holds ``a(t)`` over the interval (forward Euler): the velocity then lags the
-        truth by half a sample (26 ms), which at the loop's crossover is phase the
-        attitude's own delay cannot spare. With ``estimation.tilt_acceleration`` the
-        interval's acceleration is the mean of its two samples instead (trapezoidal).
+        The model's acceleration as it is, or the accelerometers' less their bias where
+        there is no model.
         """
+        b = self._bias_l
+        bx, by = (0.0, 0.0) if self._cfg.tilt_acceleration else (b[0], b[1])
+        yaw = k.mk_yaw_rad + (self._yaw_offset_rad or 0.0)
+        ax, ay = body_to_world(k.acc_l[0] - bx, k.acc_l[1] - by, yaw)
+        return ax, ay, (0.0 if k.z_model else b[2]) - k.acc_l[2]
+
+    def _propagate(self, k: Knot, nxt: Knot) -> Knot:
+        """``nxt`` with its state stepped from ``k`` by the configured filter."""
         dt = self._dt_s(k.t_ns, nxt.t_ns)
-        ax, ay, az = self._acc_w(k)
-        if self._tilt is not None:  # the mean of the interval's two samples: no half-step lag
-            bx, by, bz = self._acc_w(nxt)
-            ax, ay, az = 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz)
-        carry = self._cfg.latency_compensation
-        x, y, vx, vy, meas_w = k.x_m, k.y_m, k.vx_mps, k.vy_mps, k.meas_w
-        if self._yaw_offset_rad is not None:
-            mx, my = (None, None) if meas_w is None else meas_w
-            kxy = self._k_xy
-            vx1 = complementary_step(vx, mx, ax, dt, kxy)
-            vy1 = complementary_step(vy, my, ay, dt, kxy)
-            x, y, vx, vy = x + 0.5 * (vx + vx1) * dt, y + 0.5 * (vy + vy1) * dt, vx1, vy1
-            if meas_w is not None and carry:
-                meas_w = (meas_w[0] + ax * dt, meas_w[1] + ay * dt)
-        h, vz, meas_z = k.h_m, k.vz_up_mps, k.meas_z
-        if self._height_started:
-            vz1 = complementary_step(vz, meas_z, az, dt, self._k_z)
-            h, vz = h + 0.5 * (vz + vz1) * dt, vz1
-            if meas_z is not None and carry:
-                meas_z += az * dt
-        if nxt.fix_xy is not None:  # a pose anchor keeps its laser position and velocity
-            x, y = nxt.fix_xy
-            meas_w = nxt.meas_w
-        if nxt.fix_h is not None:
-            h, meas_z = nxt.fix_h, nxt.meas_z
-        return replace(
-            nxt, x_m=x, y_m=y, vx_mps=vx, vy_mps=vy, h_m=h, vz_up_mps=vz,
-            meas_w=meas_w, meas_z=meas_z,
+        horizontal = self._yaw_offset_rad is not None
+        if self._kalman:
+            res_w = None
+            if nxt.res_l is not None:  # the accelerometers less their bias, less the model
+                b = self._bias_l
+                yaw = nxt.mk_yaw_rad + (self._yaw_offset_rad or 0.0)
+                rx, ry = body_to_world(nxt.res_l[0] - b[0], nxt.res_l[1] - b[1], yaw)
+                rz = nxt.res_l[2]
+                res_w = (rx, ry, None if rz is None else b[2] - rz)
+            return kalman_knot(
+                k, nxt, self._model_w(k), self._model_w(nxt), res_w, dt,
+                noise_xy=self._noise_xy, noise_z=self._noise_z,
+                height_noise_m=self._cfg.height_noise_m,
+                horizontal=horizontal, vertical=self._height_started,
+            )  # fmt: skip
+        return complementary_knot(
+            k, nxt, self._acc_w(k), self._acc_w(nxt) if self._tilt is not None else None, dt,
+            k_xy=self._k_xy, k_z=self._k_z, carry=self._cfg.latency_compensation,
+            horizontal=horizontal, vertical=self._height_started,
         )  # fmt: skip
 
     def _anchor(self, t_ns: int) -> int | None:
@@ -367,7 +449,7 @@ class Estimator:
         a, b = ks[j], ks[j + 1]
         frac = (t_ns - a.t_ns) / (b.t_ns - a.t_ns)
         mk_yaw = wrap_pi(a.mk_yaw_rad + frac * wrap_pi(b.mk_yaw_rad - a.mk_yaw_rad))
-        ks.insert(j + 1, self._propagate(a, _Knot(t_ns, a.acc_l, mk_yaw)))
+        ks.insert(j + 1, self._propagate(a, Knot(t_ns, a.acc_l, mk_yaw, z_model=a.z_model)))
         return j + 1
 
     def _acc_integral_w(self, t0_ns: int, t1_ns: int) -> tuple[float, float, float]:
@@ -383,12 +465,12 @@ class Estimator:
                 sx, sy, sz = sx + ax * dt, sy + ay * dt, sz + az * dt
         return sx, sy, sz
 
-    def _replay(self, start: int, saved: list[_Knot]) -> bool:
+    def _replay(self, start: int, saved: list[Knot]) -> bool:
         """Recompute every knot after ``start``; restore ``saved`` if anything is not finite."""
         ks = self._knots
         for m in range(start + 1, len(ks)):
             ks[m] = self._propagate(ks[m - 1], ks[m])
-        if all(_knot_finite(k) for k in ks[start:]):
+        if all(knot_finite(k) for k in ks[start:]):
             return True
         self._knots = saved
         return False
@@ -407,25 +489,35 @@ class Estimator:
         ks = self._knots
         x, y, yaw = pose.x_m, pose.y_m, pose.yaw_rad
         compensated = self._cfg.latency_compensation
+        std = self._cfg.pose_noise_m
         if a is None:  # the history does not reach back: eq 18-20's prediction to now
             self._counts["history_misses"] += 1
             compensated, a = False, len(ks) - 1
+            age_s = (ks[a].t_ns - pose.t_ns) / NS_PER_S
             if vel is not None:
-                age_s = (ks[a].t_ns - pose.t_ns) / NS_PER_S
-                x, y = x + vel.vx_w_mps * age_s, y + vel.vy_w_mps * age_s
                 yaw += vel.yaw_rate_radps * age_s
+                if not self._kalman:
+                    x, y = x + vel.vx_w_mps * age_s, y + vel.vy_w_mps * age_s
+            if self._kalman:  # carried with the velocity estimated now, less trusted
+                x, y = x + ks[a].vx_mps * age_s, y + ks[a].vy_mps * age_s
+                std = math.hypot(std, MISS_V_STD_MPS * age_s)
         self._yaw_offset_rad = wrap_pi(yaw - ks[a].mk_yaw_rad)
-        meas: Vec2 | None = None
-        if vel is not None:
-            meas = (vel.vx_w_mps, vel.vy_w_mps)
-            if self._cfg.latency_compensation:  # the average is valid mid-interval
-                t_mid = pose.t_ns - round(vel.dt_s * NS_PER_S / 2)
-                dvx, dvy, _ = self._acc_integral_w(t_mid, ks[a].t_ns)
-                meas = (meas[0] + dvx, meas[1] + dvy)
-        ks[a] = replace(ks[a], x_m=x, y_m=y, fix_xy=(x, y), meas_w=meas)
+        if self._kalman:
+            ks[a] = replace(ks[a], fix_xy=(x, y), fix_std_m=std)
+        else:
+            meas: Vec2 | None = None
+            if vel is not None:
+                meas = (vel.vx_w_mps, vel.vy_w_mps)
+                if self._cfg.latency_compensation:  # the average is valid mid-interval
+                    t_mid = pose.t_ns - round(vel.dt_s * NS_PER_S / 2)
+                    dvx, dvy, _ = self._acc_integral_w(t_mid, ks[a].t_ns)
+                    meas = (meas[0] + dvx, meas[1] + dvy)
+            ks[a] = replace(ks[a], x_m=x, y_m=y, fix_xy=(x, y), meas_w=meas)
         for m in range(a + 1, len(ks)):  # this newer pose supersedes later predictions
             if ks[m].fix_xy is not None:
                 ks[m] = replace(ks[m], fix_xy=None)
+        if self._kalman:
+            a = self._kalman_fix(a, horizontal=True)
         if not self._replay(a, saved):
             self._yaw_offset_rad = saved_offset
             self._counts["pose_rejected"] += 1
@@ -451,16 +543,56 @@ class Estimator:
             if rate is not None:
                 h += rate * (ks[a].t_ns - t_ns) / NS_PER_S
         meas = rate
-        if rate is not None and self._cfg.latency_compensation:  # valid mid-interval
-            t_mid = t_ns - span_ns // 2
+        if rate is not None and self._cfg.latency_compensation and not self._kalman:
+            t_mid = t_ns - span_ns // 2  # the rate is valid mid-interval
             meas = rate + self._acc_integral_w(t_mid, ks[a].t_ns)[2]
         ks[a] = replace(ks[a], h_m=h, fix_h=h, meas_z=meas)
         for m in range(a + 1, len(ks)):
             if ks[m].fix_h is not None:
                 ks[m] = replace(ks[m], fix_h=None)
+        if self._kalman:
+            a = self._kalman_fix(a, horizontal=False)
         if not self._replay(a, saved):
             self._height_started = saved_started
             self._counts["height_rejected"] += 1
+
+    def _kalman_fix(self, a: int, *, horizontal: bool) -> int:
+        """Apply the fix just set on knot ``a``; the index to replay the history from.
+
+        The first fix starts the filter there; a later one recomputes the knot from its
+        predecessor (prediction, residual, then the fix), or corrects it in place when
+        the filter started on this knot.
+        """
+        ks = self._knots
+        k = ks[a]
+        started = k.kx is not None if horizontal else k.kz is not None
+        before = a > 0 and (ks[a - 1].kx if horizontal else ks[a - 1].kz) is not None
+        if not started:
+            if horizontal and k.fix_xy is not None:
+                ks[a] = replace(
+                    k, kx=self._start(k.fix_xy[0], k.fix_std_m, DISTURBANCE_STD_MPS2),
+                    ky=self._start(k.fix_xy[1], k.fix_std_m, DISTURBANCE_STD_MPS2),
+                    x_m=k.fix_xy[0], y_m=k.fix_xy[1], vx_mps=0.0, vy_mps=0.0,
+                )  # fmt: skip
+            elif not horizontal and k.fix_h is not None:
+                kz = self._start(k.fix_h, self._cfg.height_noise_m, DISTURBANCE_Z_STD_MPS2)
+                ks[a] = replace(k, kz=kz, h_m=k.fix_h, vz_up_mps=0.0)
+            return a
+        if before:
+            ks[a] = self._propagate(ks[a - 1], k)
+            return a
+        if horizontal and k.fix_xy is not None and k.kx is not None and k.ky is not None:
+            kx = update_position(k.kx, k.fix_xy[0], k.fix_std_m)
+            ky = update_position(k.ky, k.fix_xy[1], k.fix_std_m)
+            ks[a] = replace(k, kx=kx, ky=ky, x_m=kx.p, y_m=ky.p, vx_mps=kx.v, vy_mps=ky.v)
+        elif not horizontal and k.fix_h is not None and k.kz is not None:
+            kz = update_position(k.kz, k.fix_h, self._cfg.height_noise_m)
+            ks[a] = replace(k, kz=kz, h_m=kz.p, vz_up_mps=kz.v)
+        return a
+
+    @staticmethod
+    def _start(p: float, p_std: float, d_std: float) -> AxisState:
+        return AxisState.start(p, p_std, 0.0, START_V_STD_MPS, d_std)
 
     def _trim(self) -> None:
         """Drop knots older than ``imu_history_s``, keeping one at or before the cut."""

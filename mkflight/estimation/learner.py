@@ -45,6 +45,11 @@ NOISE_TAU_S: Final = 5.0
 MIN_LEARN_S: Final = 5.0
 """Steady time before a learned value is used (s)."""
 MIN_REST_S: Final = 0.5
+REST_WEIGHT_Z: Final = 10.0
+"""A second at rest counts this many in the vertical bias's mean: motors off, AccZ reads
+its offset to a few hundredths of m/s² at once, while in HOLD the vibration and the
+vehicle's own accelerations make a mean over 10 s uncertain by ~0.05 m/s² — which a blind
+descent integrates for seconds. The tilt of the floor spoils x and y at rest, not z."""
 """Time at rest before the biases are used (s): without vibration they settle at once."""
 UPDATE_EVERY: Final = 5
 """The learned figures are recomputed every this many samples (they move over seconds)."""
@@ -175,8 +180,9 @@ class AirframeLearner:
             self._learned, self._since_update = None, 0
         if not steady:
             self._rest_s += dt_s
-        for mean, a in zip(self._bias, acc_level_mps2, strict=True):
-            mean.add(max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, a)), dt_s)
+        for i, (mean, a) in enumerate(zip(self._bias, acc_level_mps2, strict=True)):
+            weight = REST_WEIGHT_Z if i == 2 and not steady else 1.0
+            mean.add(max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, a)), dt_s * weight)
         if not steady:
             return
         self._steady_s += dt_s

@@ -237,10 +237,13 @@ class FlightAirframe:
 
     def learned(self) -> dict[str, object]:
         """What the flight learned of its airframe and how it used it (``flight.json``)."""
-        kxy, kz = self.estimator.filter_gains
         out: dict[str, object] = self.learner.learned().as_dict()
         out["bias_used_mps2"] = [round(v, 4) for v in self.estimator.acc_bias_level]
-        out["filter_gains_per_s"] = [round(kxy, 3), round(kz, 3)]
+        out["filter"] = self.cfg.estimation.filter
+        if self.cfg.estimation.filter == "kalman":  # its trust in the accelerometers
+            out["acc_noise_used_mps2"] = [round(v, 4) for v in self.estimator.acc_noise_used]
+        else:
+            out["filter_gains_per_s"] = [round(v, 3) for v in self.estimator.filter_gains]
         out["descents"] = list(self.log)
         return out
 

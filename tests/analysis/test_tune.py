@@ -66,6 +66,7 @@ def _as_dict(items: list[str]) -> dict[str, float]:
 
 D = Config().control
 KZ = Config().estimation.filter_gain_z_per_s
+COMPLEMENTARY = load_config(None, ["estimation.filter=complementary"])
 
 
 def test_the_nominal_airframe_keeps_the_defaults() -> None:
@@ -77,8 +78,10 @@ def test_the_nominal_airframe_keeps_the_defaults() -> None:
         "control.kp_vxy": D.kp_vxy,
         "control.ki_vxy": D.ki_vxy,
         "control.hover_gas": 96.0,
-        "estimation.filter_gain_z_per_s": KZ,
     }
+    complementary = load_config(None, ["estimation.filter=complementary"])
+    tuned = _as_dict(tuned_overrides(_ident(), complementary))
+    assert tuned["estimation.filter_gain_z_per_s"] == KZ
 
 
 @pytest.mark.parametrize(
@@ -122,7 +125,7 @@ def test_the_gains_move_at_most_2_5_times_from_the_base() -> None:
 def test_poor_or_missing_data_leave_their_keys_alone() -> None:
     ident = _ident(_fit(poor="little excitation"), hover_gas=math.nan, noise_z=math.nan)
     assert tuned_overrides(ident, Config()) == []
-    partial = _as_dict(tuned_overrides(_ident(_fit(poor="R² 0.3 < 0.6")), Config()))
+    partial = _as_dict(tuned_overrides(_ident(_fit(poor="R² 0.3 < 0.6")), COMPLEMENTARY))
     assert set(partial) == {"control.hover_gas", "estimation.filter_gain_z_per_s"}
 
 
@@ -136,10 +139,12 @@ def test_the_hover_gas_moves_to_the_configs_voltage() -> None:
 def test_the_vertical_filter_trusts_the_laser_more_with_vibration(
     noise_ratio: float, factor: float
 ) -> None:
-    """Up with the AccZ noise, 1.5 times the default at most, never below the default."""
+    """Up with the AccZ noise, 1.5 times the default at most, never below the default;
+    only for the complementary filter (the Kalman filter measures the noise in flight)."""
     ident = _ident(noise_z=NOMINAL_NOISE_Z_MPS2 * noise_ratio)
-    tuned = _as_dict(tuned_overrides(ident, Config()))
+    tuned = _as_dict(tuned_overrides(ident, COMPLEMENTARY))
     assert tuned["estimation.filter_gain_z_per_s"] == pytest.approx(KZ * factor)
+    assert "estimation.filter_gain_z_per_s" not in _as_dict(tuned_overrides(ident, Config()))
 
 
 def test_the_written_config_loads_and_holds_the_overrides(tmp_path: Path) -> None:

@@ -96,7 +96,8 @@ def test_without_compensation_the_pose_is_current() -> None:
 
 
 def test_history_miss_falls_back_on_eq18() -> None:
-    est = Estimator(EstimationConfig(tilt_acceleration=False, imu_history_s=0.2), G)
+    cfg = EstimationConfig(filter="complementary", tilt_acceleration=False, imu_history_s=0.2)
+    est = Estimator(cfg, G)
     for i in range(20):
         est.on_imu(imu_at(i * T_NS, (0.0, 0.0, 0.0)))
     est.on_pose(Pose2D(0, 0.0, 0.0, 0.0))

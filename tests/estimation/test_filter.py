@@ -167,7 +167,11 @@ def test_matlab_appendix_equals_the_estimator() -> None:
     mx, my, _, _ = _matlab(d)
     num = len(d["x"])
     cfg = EstimationConfig(
-        tilt_acceleration=False, filter_period_s=T, filter_gain_per_s=K, latency_compensation=False
+        filter="complementary",
+        tilt_acceleration=False,
+        filter_period_s=T,
+        filter_gain_per_s=K,
+        latency_compensation=False,
     )
     est = Estimator(cfg, G)
     mk_yaw = d["yaw"][0] + 1.0

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mkflight.estimation.learner import MIN_LEARN_S, AirframeLearner
+from mkflight.estimation.learner import LEARN_TAU_S, MIN_LEARN_S, AirframeLearner
 
 STEP_NS = 53_248_000
 
@@ -154,3 +154,34 @@ def test_non_finite_input_never_enters(values: list[tuple[float, float, float, f
     assert all(math.isfinite(v) and abs(v) <= 3.0 for v in learned.bias_level_mps2)
     assert math.isfinite(learned.hover_gas_counts)
     assert all(math.isfinite(v) for v in learned.vibration_mps2)
+
+
+def rest(learner: AirframeLearner, seconds: float, bias: tuple[float, float, float]) -> int:
+    """Standing on the floor, motors off: the biases exactly, no vibration."""
+    t_ns = 0
+    for _ in range(round(seconds * 1e9 / STEP_NS)):
+        t_ns += STEP_NS
+        learner.observe(
+            t_ns,
+            acc_level_mps2=bias,
+            f_body_mps2=(0.0, 0.0, -9.81),
+            gas_factor=0.9,
+            gas_counts=0.0,
+            steady=False,
+            at_rest=True,
+        )
+    return t_ns
+
+
+def test_the_vertical_bias_at_rest_outweighs_a_short_noisy_hold() -> None:
+    """2 s at rest, then 8 s of HOLD whose mean is 0.05 m/s² off: z keeps the rest
+    value's weight of 20 s, decaying over LEARN_TAU_S (e^-0.8 of it left), where a plain
+    time mean would keep 2/10; x and y count the rest like the hold."""
+    learner = AirframeLearner(11.8)
+    t_ns = rest(learner, 2.0, (0.3, 0.3, 0.40))
+    feed(learner, 8.0, bias=(0.1, 0.1, 0.45), t0_ns=t_ns)
+    bias = learner.learned().bias_level_mps2
+    assert bias is not None
+    kept = math.exp(-8.0 / LEARN_TAU_S)
+    assert bias[2] == pytest.approx(0.40 * kept + 0.45 * (1 - kept), abs=0.002)
+    assert bias[0] == pytest.approx(0.3 * 0.2 + 0.1 * 0.8, abs=0.01)
