@@ -34,7 +34,7 @@ def write(tmp_path: Path, text: str, name: str = "config.yaml") -> Path:
 def test_defaults_load() -> None:
     cfg = load_config(None)
     assert cfg == Config()
-    assert cfg.control.kp_xy == 2.8
+    assert cfg.control.kp_xy == 2.0
     assert cfg.control.gas_max == 130
     assert cfg.mk.signs == MkSigns(nick=-1, roll=-1, yaw=-1)
     assert cfg.mk.acc_nick_counts_per_g == 606.3
@@ -58,7 +58,7 @@ def test_empty_file_and_empty_sections_are_defaults(tmp_path: Path) -> None:
 
 def test_config_dict_round_trip() -> None:
     data = config_to_dict(Config())
-    assert data["control"]["kp_xy"] == 2.8
+    assert data["control"]["kp_xy"] == 2.0
     assert data["mk"]["signs"]["nick"] == -1
     assert config_from_dict(data) == Config()
 

@@ -32,6 +32,10 @@ import math
 from dataclasses import dataclass
 from typing import Final
 
+JUMP_SIGMAS: Final = 10.0
+JUMP_M: Final = 0.05
+"""A position innovation beyond both ``JUMP_SIGMAS`` standard deviations and ``JUMP_M``
+is a jump: the position is reset to the measurement (:func:`update_position`)."""
 MIN_GATE_MPS2: Final = 1.0
 """An acceleration residual counts at most ``gate_sigmas`` standard deviations from the
 expectation, and never less than this: a jolt (a landing gear's, a hand's) is clipped."""
@@ -127,10 +131,23 @@ def update_acceleration(s: AxisState, residual: float, noise: AxisNoise) -> Axis
     )
 
 
+def is_jump(innovation: float, var: float) -> bool:
+    """``innovation`` (of variance ``var``) is a jump, not noise (:data:`JUMP_SIGMAS`)."""
+    return abs(innovation) > max(JUMP_M, JUMP_SIGMAS * math.sqrt(var))
+
+
 def update_position(s: AxisState, z: float, std: float) -> AxisState:
-    """Correct ``s`` with a position measurement ``z`` of noise ``std`` (laser, hat)."""
+    """Correct ``s`` with a position measurement ``z`` of noise ``std`` (laser, hat).
+
+    A jump (:func:`is_jump`) is not weighed but taken: the position becomes ``z`` (the
+    velocity and the disturbance stay), as the complementary filter would take it. A
+    hat over a table's edge or the seed's tables' take-off step must not become a
+    velocity of metres per second.
+    """
     var = s.pp + std * std
     innovation = z - s.p
+    if is_jump(innovation, var):
+        return AxisState(z, s.v, s.d, std * std, 0.0, 0.0, s.vv, s.vd, s.dd)
     kp, kv, kd = s.pp / var, s.pv / var, s.pd / var
     return AxisState(
         s.p + kp * innovation,
@@ -145,4 +162,11 @@ def update_position(s: AxisState, z: float, std: float) -> AxisState:
     )
 
 
-__all__ = ["AxisNoise", "AxisState", "predict", "update_acceleration", "update_position"]
+__all__ = [
+    "AxisNoise",
+    "AxisState",
+    "is_jump",
+    "predict",
+    "update_acceleration",
+    "update_position",
+]

@@ -13,9 +13,11 @@ from hypothesis import strategies as st
 from mkflight.config import EstimationConfig
 from mkflight.estimation import Estimator
 from mkflight.estimation.kalman import (
+    JUMP_M,
     MIN_GATE_MPS2,
     AxisNoise,
     AxisState,
+    is_jump,
     predict,
     update_acceleration,
     update_position,
@@ -69,6 +71,8 @@ def test_predict_is_f_p_ft_plus_q(
 
 @given(states(), finite, stds)
 def test_position_update_is_the_kalman_update(s: AxisState, z: float, std: float) -> None:
+    if is_jump(z - s.p, s.pp + std * std):
+        z = s.p + 0.01  # within the gate
     out = update_position(s, z, std)
     p, hrow = cov(s), np.array([[1.0, 0.0, 0.0]])
     k = p @ hrow.T / (p[0, 0] + std * std)
@@ -212,3 +216,16 @@ def test_the_disturbance_is_the_unexplained_acceleration() -> None:
     level = est.last_acc_level
     assert level is not None
     assert level[0] == pytest.approx(0.4, rel=0.1)
+
+
+def test_a_jump_resets_the_position_and_keeps_the_velocity() -> None:
+    """The hat over a table's edge: 0.6 m at once, 0.5 mm noise. Weighed, it would be a
+    velocity of metres per second; taken as a jump, the position moves alone."""
+    s = AxisState.start(0.0, 0.0005, 0.1, 0.01, 0.1)
+    s = predict(s, 0.0, 0.1, NOISE)
+    out = update_position(s, 0.6, 0.0005)
+    assert out.p == 0.6
+    assert out.v == s.v
+    assert out.pp == pytest.approx(0.0005**2)
+    small = update_position(s, s.p + 0.5 * JUMP_M, 0.0005)  # a centimetre or two: weighed
+    assert small.v != s.v
