@@ -83,7 +83,7 @@ class DescentParams:
     fall_mps: float = 0.15
     fall_window_s: float = 0.5
     probe_arrest_fraction: float = 0.05
-    probe_fall_limit_mps: float = 0.3
+    probe_fall_limit_mps: float = 0.2
     floor_height_m: float = 0.05
     floor_still_s: float = 0.5
     open_accel_mps2: float = 0.5
