@@ -78,10 +78,13 @@ class AxisState:
         return cls(p, v, 0.0, p_std * p_std, 0.0, 0.0, v_std * v_std, 0.0, d_std * d_std)
 
     def finite(self) -> bool:
-        """Every number finite."""
-        return all(
-            math.isfinite(x)
-            for x in (self.p, self.v, self.d, self.pp, self.pv, self.pd, self.vv, self.vd, self.dd)
+        """Every number finite.
+
+        Their sum is: a NaN or an infinity carries through it, and a sum beyond 1e308 is
+        as unusable.
+        """
+        return math.isfinite(
+            self.p + self.v + self.d + self.pp + self.pv + self.pd + self.vv + self.vd + self.dd
         )
 
 

@@ -58,9 +58,9 @@ def finite(*values: float) -> bool:
 
 def knot_finite(k: Knot) -> bool:
     """The knot's state (and the Kalman filter's covariance) finite."""
-    return finite(k.x_m, k.y_m, k.vx_mps, k.vy_mps, k.h_m, k.vz_up_mps) and all(
-        a is None or a.finite() for a in (k.kx, k.ky, k.kz)
-    )
+    if not math.isfinite(k.x_m + k.y_m + k.vx_mps + k.vy_mps + k.h_m + k.vz_up_mps):
+        return False
+    return all(a is None or a.finite() for a in (k.kx, k.ky, k.kz))
 
 
 def complementary_knot(
@@ -167,6 +167,8 @@ def kalman_knot(
     if kx is not None and ky is not None:
         x, y, vx, vy = kx.p, ky.p, kx.v, ky.v
     h, vz = (kz.p, kz.v) if kz is not None else (k.h_m, k.vz_up_mps)
-    return replace(
-        nxt, x_m=x, y_m=y, vx_mps=vx, vy_mps=vy, h_m=h, vz_up_mps=vz, kx=kx, ky=ky, kz=kz
-    )
+    return Knot(  # all fields: faster than dataclasses.replace on the 20 Hz path
+        nxt.t_ns, nxt.acc_l, nxt.mk_yaw_rad, x, y, vx, vy, h, vz,
+        nxt.meas_w, nxt.meas_z, nxt.fix_xy, nxt.fix_h, nxt.res_l, nxt.z_model,
+        kx, ky, kz, nxt.fix_std_m,
+    )  # fmt: skip
