@@ -114,24 +114,35 @@ def predict(s: AxisState, a: float, dt_s: float, noise: AxisNoise) -> AxisState:
     )
 
 
-def update_acceleration(s: AxisState, residual: float, noise: AxisNoise) -> AxisState:
-    """Correct ``s`` with one accelerometer residual ``a_meas - a`` (measures ``d``)."""
-    r = noise.acc_std * noise.acc_std
-    var = s.dd + r
-    limit = max(noise.gate_sigmas * math.sqrt(var), MIN_GATE_MPS2)
-    innovation = max(-limit, min(limit, residual - s.d))
-    kp, kv, kd = s.pd / var, s.vd / var, s.dd / var
+def _correct(
+    s: AxisState, innovation: float, var: float, row: tuple[float, float, float]
+) -> AxisState:
+    """The Kalman update for a measurement of one state.
+
+    ``row`` is that state's row of the covariance (``P Hᵀ``), ``var`` the innovation's
+    variance (``H P Hᵀ + R``): ``x += K·innovation`` and ``P -= K·rowᵀ``, ``K = row / var``.
+    """
+    r0, r1, r2 = row
+    kp, kv, kd = r0 / var, r1 / var, r2 / var
     return AxisState(
         s.p + kp * innovation,
         s.v + kv * innovation,
         s.d + kd * innovation,
-        s.pp - kp * s.pd,
-        s.pv - kp * s.vd,
-        s.pd - kp * s.dd,
-        s.vv - kv * s.vd,
-        s.vd - kv * s.dd,
-        s.dd - kd * s.dd,
+        s.pp - kp * r0,
+        s.pv - kp * r1,
+        s.pd - kp * r2,
+        s.vv - kv * r1,
+        s.vd - kv * r2,
+        s.dd - kd * r2,
     )
+
+
+def update_acceleration(s: AxisState, residual: float, noise: AxisNoise) -> AxisState:
+    """Correct ``s`` with one accelerometer residual ``a_meas - a`` (measures ``d``)."""
+    var = s.dd + noise.acc_std * noise.acc_std
+    limit = max(noise.gate_sigmas * math.sqrt(var), MIN_GATE_MPS2)
+    innovation = max(-limit, min(limit, residual - s.d))
+    return _correct(s, innovation, var, (s.pd, s.vd, s.dd))
 
 
 def is_jump(innovation: float, var: float) -> bool:
@@ -151,18 +162,7 @@ def update_position(s: AxisState, z: float, std: float) -> AxisState:
     innovation = z - s.p
     if is_jump(innovation, var):
         return AxisState(z, s.v, s.d, std * std, 0.0, 0.0, s.vv, s.vd, s.dd)
-    kp, kv, kd = s.pp / var, s.pv / var, s.pd / var
-    return AxisState(
-        s.p + kp * innovation,
-        s.v + kv * innovation,
-        s.d + kd * innovation,
-        s.pp - kp * s.pp,
-        s.pv - kp * s.pv,
-        s.pd - kp * s.pd,
-        s.vv - kv * s.pv,
-        s.vd - kv * s.pd,
-        s.dd - kd * s.pd,
-    )
+    return _correct(s, innovation, var, (s.pp, s.pv, s.pd))
 
 
 __all__ = [
