@@ -83,14 +83,36 @@ def gas_to_counts(gas: float, gas_max: int) -> int:
     return max(0, min(gas_max, round(clamped)))
 
 
-def command_within_limits(cmd: Command, control: ControlConfig) -> bool:
+TILT_ROUNDING_COUNTS = math.sqrt(0.5)
+"""How much rounding nick and roll to whole counts (0.5 each at most) can lengthen the tilt."""
+
+
+def tilt_limit_counts(control: ControlConfig, counts_per_rad: float) -> float:
+    """The longest tilt ``hypot(nick, roll)`` in counts a command may have (SPEC §4).
+
+    ``control.max_tilt_rad * counts_per_rad`` (the clamp on the tilt vector, converted at
+    ``mk.counts_per_rad``) plus :data:`TILT_ROUNDING_COUNTS`: 36.7 counts with the
+    defaults. The MK's own +-127 per axis is far looser; checking it alone passes every
+    signed byte but -128.
+    """
+    return control.max_tilt_rad * counts_per_rad + TILT_ROUNDING_COUNTS
+
+
+def command_within_limits(
+    cmd: Command, control: ControlConfig, *, counts_per_rad: float | None = None
+) -> bool:
     """True if every field of ``cmd`` is an int inside the range SPEC §4 allows.
 
     nick/roll within +-127, yaw within +-``control.yaw_max_counts``, gas within
-    ``[0, control.gas_max]``. ``bool`` is not accepted as an int.
+    ``[0, control.gas_max]``; with ``counts_per_rad`` (``mk.counts_per_rad``) also the
+    configured tilt, ``hypot(nick, roll) <=`` :func:`tilt_limit_counts` (pass it: without
+    it nick and roll are held only to the byte's range). ``bool`` is not accepted as an int.
     """
     fields = (cmd.nick_counts, cmd.roll_counts, cmd.yaw_counts, cmd.gas_counts)
     if any(type(v) is not int for v in fields):
+        return False
+    tilt_counts = math.hypot(cmd.nick_counts, cmd.roll_counts)
+    if counts_per_rad is not None and tilt_counts > tilt_limit_counts(control, counts_per_rad):
         return False
     return (
         abs(cmd.nick_counts) <= MK_STICK_LIMIT_COUNTS

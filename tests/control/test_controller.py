@@ -131,7 +131,7 @@ def test_every_command_within_limits_or_invalid(
         if out.valid:
             assert out.command is not None
             assert out.diagnostics is not None
-            assert command_within_limits(out.command, CTRL)
+            assert command_within_limits(out.command, CTRL, counts_per_rad=MK.counts_per_rad)
             d = out.diagnostics
             assert all(math.isfinite(getattr(d, f.name)) for f in dataclasses.fields(d))
             assert math.hypot(d.pitch_sp_rad, d.roll_sp_rad) <= CTRL.max_tilt_rad + 1e-12

@@ -8,12 +8,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mkflight.config import ControlConfig
+from mkflight.config import ControlConfig, MkConfig
 from mkflight.control.limits import (
     angle_to_counts,
     clamp_norm,
     command_within_limits,
     gas_to_counts,
+    tilt_limit_counts,
 )
 from mkflight.msgs import Command
 
@@ -71,3 +72,32 @@ def test_command_within_limits() -> None:
     assert not command_within_limits(Command(0, 0, 0, 0, -1), c)
     assert not command_within_limits(Command(0, 0, 0, 0, 131), c)
     assert not command_within_limits(Command(0, 0.5, 0, 0, 0), c)  # type: ignore[arg-type]
+
+
+def test_the_configured_tilt_is_the_limit_not_the_byte() -> None:
+    """With ``counts_per_rad`` nick and roll are held to ``max_tilt_rad`` (36 counts at the
+    defaults, plus the rounding of both axes), as a vector; without it to +-127 each."""
+    c, cpr = ControlConfig(), MkConfig().counts_per_rad
+    assert tilt_limit_counts(c, cpr) == pytest.approx(0.30 * 120 + math.sqrt(0.5))
+    assert command_within_limits(Command(0, 36, 0, 0, 100), c, counts_per_rad=cpr)
+    assert command_within_limits(Command(0, -25, 26, 0, 100), c, counts_per_rad=cpr)  # 36.1
+    assert not command_within_limits(Command(0, 37, 0, 0, 100), c, counts_per_rad=cpr)
+    assert not command_within_limits(Command(0, 26, -26, 0, 100), c, counts_per_rad=cpr)  # 36.8
+    assert not command_within_limits(Command(0, 127, -127, 40, 130), c, counts_per_rad=cpr)
+    assert command_within_limits(Command(0, 127, -127, 40, 130), c)  # the byte's range only
+    wide = ControlConfig(max_tilt_rad=0.5)
+    assert command_within_limits(Command(0, 60, 0, 0, 100), wide, counts_per_rad=cpr)
+    assert not command_within_limits(Command(0, 60, 0, 0, 100), c, counts_per_rad=cpr)
+    assert not command_within_limits(Command(0, 36, 0, 0, 100), c, counts_per_rad=60.0)
+
+
+@given(FINITE, FINITE, st.floats(0.05, 0.5), st.floats(10.0, 300.0))
+def test_a_clamped_tilt_in_counts_is_within_the_tilt_limit(
+    pitch: float, roll: float, max_tilt: float, cpr: float
+) -> None:
+    """What the position law does (clamp the tilt vector, convert each axis, round) always
+    passes the tilt check: the rounding allowance is enough."""
+    c = ControlConfig(max_tilt_rad=max_tilt)
+    p, r, _ = clamp_norm(pitch, roll, max_tilt)
+    cmd = Command(0, angle_to_counts(p, -1, cpr), angle_to_counts(r, -1, cpr), 0, 100)
+    assert command_within_limits(cmd, c, counts_per_rad=cpr)
