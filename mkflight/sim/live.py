@@ -24,7 +24,9 @@ Faults (:class:`~mkflight.sim.live_faults.Fault`, parsed from ``KIND@T[:ARG]`` b
 after :meth:`LiveSim.start` through the emulators' own fault methods (:data:`FAULT_KINDS`
 lists them and their arguments). The FC's and the URG's vanish and replug faults need a
 stable path: if one is scheduled and no link was given, the link is made in a temporary
-directory.
+directory. Each fault, as it fires, is logged (``sim fault``) with its time on the fault
+clock (``t_s``) and on the host's monotonic clock (``mono_s``, the flight logs' time base):
+the record a fault test checks that the fault happened, and when.
 """
 
 from __future__ import annotations
@@ -281,7 +283,11 @@ class LiveSim:
         if self._fault_clock is not None:
             await self._fault_clock.wait()
             self._fault_origin_s = time.monotonic()
-            log.info("sim fault clock started", faults=len(self.faults))
+            log.info(
+                "sim fault clock started",
+                faults=len(self.faults),
+                mono_s=round(self._fault_origin_s, 3),
+            )
         for fault in self.faults:
             delay_s = self._fault_origin_s + fault.at_s - time.monotonic()
             if delay_s > 0:
@@ -319,8 +325,14 @@ class LiveSim:
         }
         actions[fault.kind]()
         self.fired.append(fault)
+        # t_s on the fault clock (the schedule's), mono_s on the host's monotonic clock:
+        # the flight logs' time base, so a test can place the fault in the flight's events
+        now_s = time.monotonic()
         log.info(
-            "sim fault", fault=str(fault), t_s=round(time.monotonic() - self._fault_origin_s, 3)
+            "sim fault",
+            fault=str(fault),
+            t_s=round(now_s - self._fault_origin_s, 3),
+            mono_s=round(now_s, 3),
         )
 
     def _garbage(self, n: int) -> bytes:

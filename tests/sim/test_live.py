@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import structlog.testing
 
 from mkflight.config import Config, SimConfig, SimVehicleConfig
 from mkflight.errors import ConfigError, LinkError
@@ -164,6 +165,29 @@ async def test_a_laser_stall_fires_on_time_and_stops_the_scans() -> None:
             assert time.monotonic() - fired_s > 0.8
         finally:
             await driver.close()
+
+
+async def test_each_fired_fault_is_logged_with_its_time_on_both_clocks() -> None:
+    """The ``sim fault`` line says what fired, when on the fault clock (counted from the
+    fault clock's start, here an event as ``--faults-on-sigusr1`` sets it) and when on the
+    host's monotonic clock, the flight logs' time base: a fault test's proof of the fault."""
+    clock = asyncio.Event()
+    faults = ["battery@0.3:11.0", "fc-corrupt@0.1:2"]
+    with structlog.testing.capture_logs() as logs:
+        async with LiveSim(CFG, seed=7, faults=faults, fault_clock=clock) as sim:
+            await asyncio.sleep(0.2)
+            assert sim.fired == []  # the clock has not started: nothing fires
+            clock.set()
+            started_s = time.monotonic()
+            await asyncio.wait_for(sim.faults_done.wait(), timeout=2.0)
+    origin = [r for r in logs if r["event"] == "sim fault clock started"]
+    assert len(origin) == 1
+    assert origin[0]["mono_s"] == pytest.approx(started_s, abs=0.05)
+    fired = [r for r in logs if r["event"] == "sim fault"]
+    assert [r["fault"] for r in fired] == ["fc-corrupt@0.1:2", "battery@0.3:11"]
+    for rec, at_s in zip(fired, (0.1, 0.3), strict=True):
+        assert rec["t_s"] == pytest.approx(at_s, abs=0.05)
+        assert rec["mono_s"] - origin[0]["mono_s"] == pytest.approx(rec["t_s"], abs=0.002)
 
 
 async def test_battery_and_fc_faults_reach_the_link() -> None:
