@@ -29,9 +29,9 @@ from mkflight.logs.table3 import read_table3
 from mkflight.logs.table4 import read_table4
 from mkflight.mk.messages import ExternControl
 from tests.integration.recorded import assert_landed_softly, commands_sent
+from tests.limits_check import Counts, assert_within_limits, flown_config
 
 MKFLIGHT = [sys.executable, "-m", "mkflight"]
-GAS_MAX = 130  # control.gas_max, the default config
 FLIGHT_TIMEOUT_S = 150.0
 MAX_AT_ONCE = 5  # flights flown side by side (see _run_all)
 
@@ -187,12 +187,14 @@ def flights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Outcome]:
     return _run_all(tmp_path_factory.mktemp("flights"))
 
 
+def _counts(cmds: list[ExternControl]) -> list[Counts]:
+    return [(c.nick, c.roll, c.yaw, c.gas) for c in cmds]
+
+
 def _assert_commands_safe(folder: Path) -> list[ExternControl]:
     cmds = commands_sent(folder)
     assert cmds, "no ExternControl recorded"
-    for c in cmds:
-        assert 0 <= int(c.gas) <= GAS_MAX
-        assert all(-127 <= int(v) <= 127 for v in (c.nick, c.roll, c.yaw))
+    assert_within_limits(_counts(cmds), flown_config(folder))
     assert int(cmds[-1].config) == 0, "the last frame must hand control back (Config = 0)"
     return cmds
 
@@ -292,8 +294,7 @@ def test_fc_vanishing_exits_1_with_a_clear_line_and_intact_logs(
     read_table4(o.folder / "imu_50ms.log")
     read_table3(o.folder / "laser_100ms.log")
     assert _summary(o.folder)["exit_code"] == 1
-    for c in commands_sent(o.folder):
-        assert 0 <= int(c.gas) <= GAS_MAX
+    assert_within_limits(_counts(commands_sent(o.folder)), flown_config(o.folder))
 
 
 def test_laser_stall_lands_by_failsafe(flights: dict[str, Outcome]) -> None:

@@ -26,8 +26,7 @@ from mkflight.logs.raw import read_raw
 from mkflight.msgs import ImuSample
 from mkflight.sim.live import LiveSim
 from tests.integration.recorded import assert_landed_softly, commands_sent
-
-GAS_MAX = Config().control.gas_max
+from tests.limits_check import assert_within_limits, flown_config
 
 
 class HoldFault:
@@ -93,9 +92,7 @@ async def test_nan_in_the_estimate_lands_with_every_command_in_limits(tmp_path: 
     causes = [e.fields.get("cause") for e in read_events(folder / "events.jsonl").events]
     assert "nonfinite" in causes
     cmds = commands_sent(folder)
-    for c in cmds:
-        assert 0 <= int(c.gas) <= GAS_MAX
-        assert all(-127 <= int(v) <= 127 for v in (c.nick, c.roll, c.yaw))
+    assert_within_limits([(c.nick, c.roll, c.yaw, c.gas) for c in cmds], flown_config(folder))
     assert int(cmds[-1].config) == 0
     assert_landed_softly(folder)  # on the hat alone, level: the FC's samples are garbage
 
@@ -160,8 +157,8 @@ async def test_a_full_disk_mid_flight_lands_softly(tmp_path: Path) -> None:
     assert report.reason.startswith("log write failed")
     assert report.summary["final_phase"] == "RELEASED"
     assert "No space left" in str(report.summary["log_error"])
-    for c in commands_sent(folder):
-        assert 0 <= int(c.gas) <= GAS_MAX
+    cmds = commands_sent(folder)
+    assert_within_limits([(c.nick, c.roll, c.yaw, c.gas) for c in cmds], flown_config(folder))
     assert_landed_softly(folder)
 
 

@@ -20,6 +20,7 @@ from mkflight.sim.hover import (
     flight_end,
     run_hover,
 )
+from tests.limits_check import assert_within_limits, flown_config
 
 from .test_cli_mk_info import error_lines, run_cli
 
@@ -44,7 +45,12 @@ def test_a_short_flight_lands_and_leaves_readable_tables(tmp_path: Path) -> None
     assert t3.shape[1] == 10
     assert t4.shape[1] == 14
     assert len(t4) == pytest.approx(2 * len(t3), rel=0.2)
-    assert np.all(np.abs(t4[:, 6:9]) <= 127)  # commands within the MK's limits
+    # every command within the flight's configured limits: tilt, yaw from TABLE IV's
+    # ControlPitch/Roll/Yaw, gas from the step events (one per row, the same steps)
+    gas = [e.fields["gas_counts"] for e in load_flight(tmp_path / "f").events if e.event == "step"]
+    assert len(gas) == len(t4)
+    counts = [(r[6], r[7], r[8], g) for r, g in zip(t4.tolist(), gas, strict=True)]
+    assert_within_limits(counts, flown_config(tmp_path / "f"))
     truth = np.loadtxt(tmp_path / "f" / "truth.txt", skiprows=1)  # '#' lines skipped
     assert truth[:, 3].max() == pytest.approx(0.6, abs=0.15)  # flew at 0.6 m (overshoot: untuned)
     assert truth[-1, 3] < 0.05  # and landed
