@@ -1,4 +1,9 @@
-"""Frames, checksum and the incremental parser (``mk-serial.md`` §2-3, vectors §9.1-9.2)."""
+"""Frames, checksum and the incremental parser (``mk-serial.md`` §2-3, vectors §9.1-9.2).
+
+The vectors are the in-project literals of ``tests/mk/vectors.py``; the tests marked ``shared``
+also check those literals against the document itself when ``../shared`` is there
+(``tests/conftest.py``), and are deselected on a clone without it.
+"""
 
 from __future__ import annotations
 
@@ -43,8 +48,8 @@ from .vectors import (
     VersionInfoVector,
 )
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-MK_SERIAL_MD = (REPO_ROOT / "../shared/protocols/mk-serial.md").resolve()
+#: The document the vectors are transcribed from, relative to the shared folder.
+MK_SERIAL_MD = "protocols/mk-serial.md"
 
 # The command character each kind of §9.1 vector travels with (§4).
 CMD_OF_KIND: dict[type[FrameLike], str] = {
@@ -182,10 +187,9 @@ def _doc_rows(text: str) -> dict[str, tuple[str, dict[str, Any], bytes]]:
 
 
 @pytest.fixture(scope="module")
-def doc_rows() -> dict[str, tuple[str, dict[str, Any], bytes]]:
-    if not MK_SERIAL_MD.is_file():
-        pytest.skip(f"{MK_SERIAL_MD} is absent: cannot cross-check the vector literals")
-    return _doc_rows(MK_SERIAL_MD.read_text(encoding="utf-8"))
+def doc_rows(shared_dir: Path) -> dict[str, tuple[str, dict[str, Any], bytes]]:
+    """The §9 rows of the shared document (only tests marked ``shared(MK_SERIAL_MD)`` use it)."""
+    return _doc_rows((shared_dir / MK_SERIAL_MD).read_text(encoding="utf-8"))
 
 
 def test_vector_ids_are_mk01_to_mk24() -> None:
@@ -194,12 +198,14 @@ def test_vector_ids_are_mk01_to_mk24() -> None:
     assert len(STREAM_VECTORS) == 5
 
 
+@pytest.mark.shared(MK_SERIAL_MD)
 def test_document_lists_exactly_our_vectors(
     doc_rows: dict[str, tuple[str, dict[str, Any], bytes]],
 ) -> None:
     assert sorted(doc_rows) == list(ALL_VECTORS)
 
 
+@pytest.mark.shared(MK_SERIAL_MD)
 @pytest.mark.parametrize("vid", list(ALL_VECTORS))
 def test_vector_bytes_equal_document(
     vid: str, doc_rows: dict[str, tuple[str, dict[str, Any], bytes]]
@@ -208,6 +214,7 @@ def test_vector_bytes_equal_document(
     assert ALL_VECTORS[vid].data == data
 
 
+@pytest.mark.shared(MK_SERIAL_MD)
 @pytest.mark.parametrize("vid", list(ALL_VECTORS))
 def test_vector_fields_equal_document(
     vid: str, doc_rows: dict[str, tuple[str, dict[str, Any], bytes]]

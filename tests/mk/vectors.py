@@ -1,8 +1,11 @@
 r"""The byte vectors of ``protocols/mk-serial.md`` §9.1 (MK-01..MK-19) and §9.2 (MK-20..MK-24).
 
-Copied by hand as Python literals so the tests run without the shared folder; a test in
-``test_codec.py`` re-reads the document's tables (when it is there) and checks that every
-``bytes`` literal and every ``fields`` call below equals the document's. Each record's
+Source: ``../shared/protocols/mk-serial.md`` ("MikroKopter FlightCtrl serial protocol — as
+mkflight uses it", reference firmware FlightCtrl V0.84a), §9 "Test vectors", tables §9.1
+"Frames" and §9.2 "Byte streams". Copied by hand as Python literals so the suite stands alone on
+a clone without the shared folder; the tests marked ``shared`` in ``test_codec.py`` re-read the
+document's tables when it is there and check that every ``bytes`` literal and every ``fields``
+call below equals the document's. Each record's
 fields mirror the document's ``Kind(key=value, ...)`` call: the class is the kind, ``data``
 the ``bytes`` column. Defaults are the document's ("0 where not given").
 """

@@ -1,4 +1,9 @@
-"""The SCIP 2.0 codec and reply parser against every vector of ``protocols/scip2.md`` §7."""
+"""The SCIP 2.0 codec and reply parser against every vector of ``protocols/scip2.md`` §7.
+
+The vectors are the in-project literals of ``tests/urg/vectors.py``; the tests marked
+``shared`` also check those literals against the document itself when ``../shared`` is there
+(``tests/conftest.py``), and are deselected on a clone without it.
+"""
 
 from __future__ import annotations
 
@@ -43,7 +48,8 @@ from tests.urg.vectors import (
     TimestampVector,
 )
 
-SCIP2_MD = Path(__file__).resolve().parents[2].parent / "shared" / "protocols" / "scip2.md"
+#: The document the vectors are transcribed from, relative to the shared folder.
+SCIP2_MD = "protocols/scip2.md"
 
 
 def parse_one(data: bytes) -> tuple[list[Reply], ReplyParser]:
@@ -77,10 +83,9 @@ def _doc_rows(text: str) -> dict[str, tuple[str, dict[str, Any], list[bytes]]]:
 
 
 @pytest.fixture(scope="module")
-def doc_rows() -> dict[str, tuple[str, dict[str, Any], list[bytes]]]:
-    if not SCIP2_MD.is_file():
-        pytest.skip(f"{SCIP2_MD} is absent: cannot cross-check the vector literals")
-    return _doc_rows(SCIP2_MD.read_text(encoding="utf-8"))
+def doc_rows(shared_dir: Path) -> dict[str, tuple[str, dict[str, Any], list[bytes]]]:
+    """The §7 rows of the shared document (only tests marked ``shared(SCIP2_MD)`` use it)."""
+    return _doc_rows((shared_dir / SCIP2_MD).read_text(encoding="utf-8"))
 
 
 def test_vector_ids() -> None:
@@ -89,12 +94,14 @@ def test_vector_ids() -> None:
     assert list(ALL_VECTORS) == codec + exchanges
 
 
+@pytest.mark.shared(SCIP2_MD)
 def test_document_lists_exactly_our_vectors(
     doc_rows: dict[str, tuple[str, dict[str, Any], list[bytes]]],
 ) -> None:
     assert list(doc_rows) == list(ALL_VECTORS)
 
 
+@pytest.mark.shared(SCIP2_MD)
 @pytest.mark.parametrize("vid", list(ALL_VECTORS))
 def test_vector_equals_document(
     vid: str, doc_rows: dict[str, tuple[str, dict[str, Any], list[bytes]]]

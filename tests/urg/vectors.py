@@ -1,10 +1,12 @@
 # ruff: noqa: E501  (the literals are copied whole from the document, one per line)
 r"""The byte vectors of ``protocols/scip2.md`` §7.1 (SC-C1..SC-C10) and §7.2 (SC-01..SC-21).
 
-Copied as Python literals so the tests run without the shared folder; ``test_codec.py``
-re-reads the document's tables (when it is there) and checks that every bytes literal and
-every ``fields`` call below equals the document's. Each record mirrors the document's
-``Kind(key=value, ...)``: the class is the kind, ``data`` (codec) or ``command`` and
+Source: ``../shared/protocols/scip2.md`` ("Hokuyo SCIP 2.0 for the URG-04LX — as mkflight uses
+it"), §7 "Test vectors", tables §7.1 "Codec" and §7.2 "Exchanges". Copied as Python literals so
+the suite stands alone on a clone without the shared folder; the tests marked ``shared`` in
+``test_codec.py`` re-read the document's tables when it is there and check that every bytes
+literal and every ``fields`` call below equals the document's. Each record mirrors the
+document's ``Kind(key=value, ...)``: the class is the kind, ``data`` (codec) or ``command`` and
 ``reply`` (exchanges) the bytes columns. Defaults are the document's: an exchange starts
 in SCIP 2.0 with the laser off, the timer at 0, the command sent at step 0 of a scan
 (``at_ms=0``), 1000 mm at every step not in ``ranges``, and no time running afterwards.

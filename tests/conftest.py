@@ -1,0 +1,58 @@
+"""The opt-in cross-checks against the ``../shared`` documents.
+
+The suite stands alone: the protocol vectors, the seed's tables and the small laser set the
+tests need are transcribed into the project (``tests/mk/vectors.py``, ``tests/urg/vectors.py``,
+``tests/mk/test_units.py``, ``tests/data/``), each naming its source. A test marked
+``@pytest.mark.shared("protocols/scip2.md")`` compares such a transcription with the document it
+came from, so it runs only where that document exists: in ``../shared`` beside the repository,
+or in the folder ``MKFLIGHT_SHARED`` names. Elsewhere (a fresh clone) it is deselected rather
+than skipped, because nothing is missing: the facts it checks are already in the project.
+Run only the cross-checks with ``python -m pytest -m shared``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+#: The shared documents' folder: ``$MKFLIGHT_SHARED``, else ``../shared`` beside the repository.
+SHARED_DIR = Path(
+    os.environ.get("MKFLIGHT_SHARED") or Path(__file__).resolve().parents[1].parent / "shared"
+)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers",
+        "shared(path): cross-checks an in-project transcription against ../shared/<path> "
+        "(or $MKFLIGHT_SHARED/<path>); deselected when that file is absent",
+    )
+
+
+def _shared_path(item: pytest.Item) -> Path | None:
+    """The document ``item``'s ``shared`` marker names, or None for an ordinary test."""
+    marker = item.get_closest_marker("shared")
+    if marker is None:
+        return None
+    (relative,) = marker.args
+    return SHARED_DIR / str(relative)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    keep: list[pytest.Item] = []
+    absent: list[pytest.Item] = []
+    for item in items:
+        path = _shared_path(item)
+        (absent if path is not None and not path.exists() else keep).append(item)
+    if absent:
+        config.hook.pytest_deselected(items=absent)
+        items[:] = keep
+
+
+@pytest.fixture(scope="session")
+def shared_dir() -> Path:
+    """The shared documents' folder, for the tests marked ``shared`` (which run only when
+    their document is in it)."""
+    return SHARED_DIR
