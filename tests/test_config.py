@@ -45,8 +45,7 @@ def test_defaults_load() -> None:
 
 
 def test_repo_config_yaml_equals_defaults() -> None:
-    if not REPO_CONFIG.is_file():
-        pytest.skip(f"{REPO_CONFIG} does not exist yet")
+    assert REPO_CONFIG.is_file(), f"{REPO_CONFIG} is missing: the repository ships it"
     assert load_config(REPO_CONFIG) == Config()
 
 

@@ -1,4 +1,9 @@
-"""``mkflight plot``: PNG figures of a fresh simulated flight, and its error paths."""
+"""``mkflight plot``: PNG figures of a fresh simulated flight, and its error paths.
+
+matplotlib comes with the ``test`` extra, so these tests need it rather than skip without it
+(the command's own error then names the ``plot`` extra); the one test that removes it from
+``sys.modules`` checks that message.
+"""
 
 from __future__ import annotations
 
@@ -53,7 +58,6 @@ def _assert_pngs(paths: list[Path]) -> None:
 def test_plot_writes_every_figure_as_png(
     flight: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    pytest.importorskip("matplotlib")
     out = tmp_path / "figs"
     assert cmd_plot(log_dir=str(flight), out_dir=str(out)) == 0
     printed = [Path(line) for line in capsys.readouterr().out.splitlines()]
@@ -65,7 +69,6 @@ def test_plot_writes_every_figure_as_png(
 def test_plot_defaults_to_logdir_plots_through_the_cli(
     flight: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    pytest.importorskip("matplotlib")
     folder = _copy(flight, tmp_path)
     assert main(["plot", str(folder)]) == 0
     pngs = sorted((folder / "plots").glob("*.png"))
@@ -76,7 +79,6 @@ def test_plot_defaults_to_logdir_plots_through_the_cli(
 
 def test_plot_of_the_two_tables_alone(flight: Path, tmp_path: Path) -> None:
     """The seed's own logs (TABLE III and IV only): four figures, no battery."""
-    pytest.importorskip("matplotlib")
     folder = tmp_path / "tables"
     folder.mkdir()
     for name in ("laser_100ms.log", "imu_50ms.log"):
@@ -107,7 +109,6 @@ def test_missing_matplotlib_names_the_extra(
 def test_missing_folder_is_a_clear_error(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    pytest.importorskip("matplotlib")  # the command checks for it first
     assert main(["plot", str(tmp_path / "nope")]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error: ")
@@ -115,7 +116,6 @@ def test_missing_folder_is_a_clear_error(
 
 
 def test_missing_table_names_the_file(flight: Path, tmp_path: Path) -> None:
-    pytest.importorskip("matplotlib")  # the command checks for it first
     folder = _copy(flight, tmp_path)
     (folder / "imu_50ms.log").unlink()
     with pytest.raises(ReplayError, match=r"imu_50ms\.log: cannot read"):
@@ -125,7 +125,6 @@ def test_missing_table_names_the_file(flight: Path, tmp_path: Path) -> None:
 def test_empty_log_is_a_clear_error(
     flight: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    pytest.importorskip("matplotlib")  # the command checks for it first
     folder = _copy(flight, tmp_path)
     log = folder / "laser_100ms.log"
     log.write_text(log.read_text().splitlines()[0] + "\n")  # the header, no rows
@@ -140,7 +139,6 @@ def test_empty_log_is_a_clear_error(
 
 
 def test_malformed_row_names_file_and_line(flight: Path, tmp_path: Path) -> None:
-    pytest.importorskip("matplotlib")  # the command checks for it first
     folder = _copy(flight, tmp_path)
     log = folder / "imu_50ms.log"
     lines = log.read_text().splitlines(keepends=True)
@@ -151,7 +149,6 @@ def test_malformed_row_names_file_and_line(flight: Path, tmp_path: Path) -> None
 
 
 def test_malformed_truth_log_is_a_clear_error(flight: Path, tmp_path: Path) -> None:
-    pytest.importorskip("matplotlib")  # the command checks for it first
     folder = _copy(flight, tmp_path)
     (folder / "truth.txt").write_text("t x y z\n0.1 0.2\n")
     with pytest.raises(PlotError, match=r"truth\.txt"):

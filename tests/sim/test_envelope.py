@@ -222,7 +222,7 @@ def test_the_hold_window_ends_at_the_land_request() -> None:
 
 
 def test_plots_of_hand_made_runs(tmp_path: Path) -> None:
-    pytest.importorskip("matplotlib")
+    # matplotlib is in the ``test`` extra: needed here, not skipped without it.
     from mkflight.sim.envelope_plot import envelope_plots
 
     paths = envelope_plots(RUNS, tmp_path / "plots")
