@@ -13,8 +13,12 @@ The fault is armed once the flight has held for ``--after-hold-s`` seconds (coun
 * ``kill-matcher``: SIGKILL to the scan-matcher process;
 * ``nan-estimate``, ``inf-estimate``, ``huge-estimate``: every DebugOut sample from then on
   has NaN / inf / 1e300 in its accelerations and attitude, the values the estimate is made of;
-* ``wall-clock-jump``: ``time.time()`` / ``time.time_ns()`` jump an hour ahead (an NTP or
-  RTC step on a board without a clock); the flight must not notice;
+* ``wall-clock-jump``: the process's wall clock steps an hour ahead (an NTP or RTC step on
+  a board without a clock), as Python code reads it: ``time.time``, ``time.time_ns`` and
+  ``datetime.now``/``utcnow``/``today`` (:func:`shift_wall_clock`; structlog's stamps
+  read the latter, so the daemon's log lines show the jump). The flight runs on monotonic
+  clocks only (``tests/faults/test_wall_clock.py`` checks the source), so it must fly on
+  as a plain hover;
 * ``disk-full``: every file the daemon has open in the flight folder now fails with ENOSPC
   (``/dev/full`` put behind its descriptors with ``dup2``: the kernel's own error on the
   real write path);
@@ -27,13 +31,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import datetime
 import multiprocessing
 import os
 import signal
 import sys
 import time
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, Self
 
 import mkflight.flight.app as app_module
 from mkflight.cli import main as mkflight_main
@@ -84,9 +89,7 @@ class _Injector:
             for child in multiprocessing.active_children():
                 os.kill(child.pid or 0, signal.SIGKILL)
         elif self.fault == "wall-clock-jump":
-            real_time, real_time_ns = time.time, time.time_ns
-            time.time = lambda: real_time() + WALL_JUMP_S
-            time.time_ns = lambda: real_time_ns() + int(WALL_JUMP_S * 1e9)
+            shift_wall_clock(WALL_JUMP_S)
         elif self.fault == "disk-full":
             self._redirect_folder_fds()
         self.fired = True
@@ -120,6 +123,40 @@ class _Injector:
                 sample, acc_x_mps2=bad, acc_y_mps2=-bad, pitch_rad=bad, roll_rad=bad
             )
         return sample
+
+
+def shift_wall_clock(offset_s: float) -> None:
+    """Step this process's wall clock ``offset_s`` ahead, for every reader from now on.
+
+    ``time.time``/``time.time_ns`` are replaced in :mod:`time`; ``datetime.datetime`` by a
+    subclass whose ``now``/``utcnow``/``today`` add the offset, in :mod:`datetime` (read
+    there at call time, as structlog does) and in every loaded ``mkflight`` module that
+    imported the class by name. The monotonic clocks are untouched, as in an NTP step.
+    """
+    real_time, real_time_ns = time.time, time.time_ns
+    offset = datetime.timedelta(seconds=offset_s)
+    real = datetime.datetime
+
+    class ShiftedDatetime(datetime.datetime):
+        @classmethod
+        def now(cls, tz: datetime.tzinfo | None = None) -> Self:
+            t = real.now(tz) + offset
+            return cls.combine(t.date(), t.timetz())
+
+        @classmethod
+        def utcnow(cls) -> Self:
+            return cls.now(datetime.UTC).replace(tzinfo=None)
+
+        @classmethod
+        def today(cls) -> Self:
+            return cls.now()
+
+    time.time = lambda: real_time() + offset_s
+    time.time_ns = lambda: real_time_ns() + round(offset_s * 1e9)
+    datetime.datetime = ShiftedDatetime  # type: ignore[misc]
+    for name, module in list(sys.modules.items()):
+        if name.startswith("mkflight") and getattr(module, "datetime", None) is real:
+            module.datetime = ShiftedDatetime  # type: ignore[attr-defined]
 
 
 def install(fault: str, after_hold_s: float) -> _Injector:
