@@ -1,13 +1,13 @@
 """Fly the whole fault campaign and print (or write into the README) its table of results.
 
-    python tools/faults.py             # every fault (~4 min on 2 cores); the table on stdout
+    python tools/faults.py             # every fault (~3 min on 2 cores); the table on stdout
     python tools/faults.py --readme    # ... and replace the table in README.md
     python tools/faults.py -k sigkill  # some of them (pytest's -k)
 
-It runs ``pytest tests/faults`` with ``MKFLIGHT_FAULTS=all`` (CI flies only the subset
-marked ``ci`` in ``tests/faults/campaign.py``) and ``MKFLIGHT_FAULTS_REPORT`` naming a
-file where each test writes its verdict; the table is made from those verdicts, so it
-says what this run saw. Exit code: pytest's (non-zero if any fault was not handled).
+It runs ``pytest tests/faults`` (the same flights CI flies) with
+``MKFLIGHT_FAULTS_REPORT`` naming a file where each test writes its verdict; the table is
+made from those verdicts, so it says what this run saw. Exit code: pytest's (non-zero if
+any fault was not handled).
 """
 
 from __future__ import annotations
@@ -37,9 +37,10 @@ def _short(message: str, limit: int = 90) -> str:
 def table(rows: list[dict[str, Any]]) -> str:
     """The markdown table of the verdicts, in campaign order."""
     lines = [
-        "| fault | outcome | touchdowns m/s | extern control ended by | exit | message "
+        "| fault | fired (after HOLD) | the daemon's record (after the fault) | outcome "
+        "| touchdowns m/s | extern control ended by | exit | message "
         "| commands (max tilt / gas, counts) | logs | verdict |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         cmds = "none"
@@ -51,6 +52,8 @@ def table(rows: list[dict[str, Any]]) -> str:
                 _cell(x)
                 for x in (
                     r["what"],
+                    r.get("fired") or "-",
+                    r.get("record") or "-",
                     r["end"],
                     ", ".join(f"{v:.2f}" for v in r.get("touchdowns_mps", [])) or "-",
                     r["released_by"] or "-",
@@ -86,14 +89,14 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         report = Path(tmp) / "verdicts.jsonl"
-        env = os.environ | {"MKFLIGHT_FAULTS": "all", "MKFLIGHT_FAULTS_REPORT": str(report)}
+        env = os.environ | {"MKFLIGHT_FAULTS_REPORT": str(report)}
         cmd = [sys.executable, "-m", "pytest", "tests/faults", "-q", "-p", "no:cacheprovider"]
         if args.k:
             cmd += ["-k", args.k]
         code = subprocess.run(cmd, cwd=REPO, env=env, check=False).returncode
         lines = report.read_text().splitlines() if report.exists() else []
         rows = [json.loads(line) for line in lines]
-    from tests.faults.campaign import SCENARIOS
+    from tests.faults.scenarios import SCENARIOS
 
     order = {sc.name: i for i, sc in enumerate(SCENARIOS)}
     rows.sort(key=lambda r: (order.get(r["name"], len(order)), r["name"]))

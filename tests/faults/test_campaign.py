@@ -1,43 +1,28 @@
-"""The fault campaign (issue 10): every fault of :mod:`tests.faults.campaign`, judged alike.
+"""The fault campaign (issues 10, 18): every fault of :mod:`tests.faults.scenarios`, judged
+alike by :mod:`tests.faults.judge`.
 
 The flights are real (simulator and daemon in their own processes, on ptys, in real time)
-and fly four at a time in one module fixture; CI flies the scenarios marked ``ci``, and
-``tools/faults.py`` (``MKFLIGHT_FAULTS=all``) flies them all and writes the README's table
-from the verdicts (``MKFLIGHT_FAULTS_REPORT``). Faults that need no flight (NaN, inf and
-huge values in the config and in a recorded flight to replay) are judged here too.
+and fly four at a time in one module fixture; CI flies every scenario, and
+``tools/faults.py`` runs this module and writes the README's table from the verdicts
+(``MKFLIGHT_FAULTS_REPORT``). Faults that need no flight (NaN, inf and huge values in the
+config and in a recorded flight to replay) are judged here too.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import re
 import shutil
 import subprocess
 from pathlib import Path
-from typing import Any
 
 import pytest
 
 from mkflight.logs import load_flight
-from tests.faults.campaign import (
-    CFG,
-    PY,
-    REPO,
-    SCENARIOS,
-    Flight,
-    Verdict,
-    fly_all,
-    judge,
-    report_row,
-)
-
-
-def _params() -> list[Any]:
-    return [
-        pytest.param(sc.name, id=sc.name, marks=() if sc.ci else (pytest.mark.campaign_full,))
-        for sc in SCENARIOS
-    ]
+from tests.faults.campaign import PY, REPO, Flight, fly_all
+from tests.faults.judge import Verdict, judge, report_row
+from tests.faults.scenarios import SCENARIOS
+from tests.limits_check import flown_config, limit_violations
 
 
 def _selected(session: pytest.Session) -> set[str]:
@@ -63,7 +48,7 @@ def flights(
     return fly_all([sc for sc in SCENARIOS if sc.name in wanted], base)
 
 
-@pytest.mark.parametrize("name", _params())
+@pytest.mark.parametrize("name", [sc.name for sc in SCENARIOS])
 def test_fault(name: str, flights: dict[str, Flight]) -> None:
     flight = flights[name]
     if flight.skipped is not None:
@@ -167,19 +152,11 @@ def test_bad_values_in_a_recorded_flight(
     if out.exists():
         data = load_flight(out)
         cmds = data.commands
-        limit = CFG.control.max_tilt_rad * CFG.mk.counts_per_rad + 1.0
+        counts = zip(cmds["nick"], cmds["roll"], cmds["yaw"], cmds["gas"], strict=True)
         if len(cmds) == 0:
             problems.append("the replay wrote no command")
-        elif (
-            max(
-                math.hypot(float(n), float(r))
-                for n, r in zip(cmds["nick"], cmds["roll"], strict=True)
-            )
-            > limit
-            or int(cmds["gas"].max()) > CFG.control.gas_max
-            or int(abs(cmds["yaw"]).max()) > CFG.control.yaw_max_counts
-        ):
-            problems.append("a replayed command out of limits")
+        elif bad := limit_violations(counts, flown_config(out)):
+            problems.append(f"{len(bad)} replayed commands out of limits, e.g. {bad[0]}")
         elif int(cmds["config"][-1]) != 0:
             problems.append("the replay did not end with Config = 0")
         summary = json.loads((out / "flight.json").read_text(encoding="utf-8")).get("summary")

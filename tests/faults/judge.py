@@ -1,0 +1,454 @@
+"""The verdict on one fault flight (issues 10, 17, 18): the same checks for every fault.
+
+Every flight of :mod:`tests.faults.campaign` is judged on:
+
+* **the fault fired, when scheduled**: the simulator's own record (its ``sim fault`` log
+  lines, with the fault-clock and host-monotonic times) names every scheduled fault, each
+  at its time after the hold began (the daemon's HOLD event, same monotonic clock); an
+  injected fault's ``inject: ... armed at T`` line 2 s into the hold and its
+  ``fired=True``; each signal sent at its time. A fault that did not fire fails the row
+  whatever the daemon did;
+* **a clean hover until then**: no failsafe, stop or crash between the hold's start and the
+  fault (else the outcome is not the fault's);
+* **the daemon's own record of the fault** (:class:`~tests.faults.scenarios.Scenario`):
+  failsafe causes, stop request and crashed task logged after the fault, link counters in
+  ``flight.json``, a gap in the steps;
+* **the outcome against a plain hover**: an absorbed fault leaves the baseline's flight
+  (``--duration`` stop on time, no failsafe before it); any other ends the hold within the
+  scenario's ``react_s`` of the fault (its first failsafe, stop, crash or phase change, or
+  the last step it logged);
+* **who flies at the end**: the simulated FC logs each change of "extern control applied"
+  and what ended it (our Config = 0 frame, its own hold counter ~5.2 s after the last frame
+  when no frame could go, a reboot); after the daemon has gone the last one must say *off*.
+  *landed*: on the floor (< 5 cm) when that happened; *released*: in the air, in the
+  pilot's hands; *ground*: it never took off. Our landing's touchdown (the simulator's
+  truth) is at most 0.5 m/s;
+* **every command within the limits the flight was configured with** (its ``flight.json``;
+  :mod:`tests.limits_check`), read back from ``mk.raw`` and as the FC took them (the sim's
+  summary line, which still sees them when the disk was full);
+* **logs readable** with :func:`mkflight.logs.load_flight` and, when the flight was killed,
+  rows up to the kill: the last step event within 0.5 s before it;
+* **the exit code and the message** (the ``error:`` line, or the JSON summary's reason)
+  match the scenario's.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import os
+import re
+import signal
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import Any, Final
+
+from mkflight.config import Config
+from mkflight.errors import MkflightError
+from mkflight.logs import load_flight
+from mkflight.logs.events import Event
+from mkflight.sim.live_faults import parse_faults
+from mkflight.sim.truth import parse_touchdowns
+from tests.faults.campaign import Flight
+from tests.faults.scenarios import FAULT_AT_S, Scenario
+from tests.limits_check import flown_config, limit_violations
+
+LANDED_M: Final = 0.05
+MAX_TOUCHDOWN_MPS: Final = 0.5  # issue 17: every landing, judged on the simulator's truth
+NS: Final = 1e9
+FIRE_EARLY_S: Final = 0.05  # a record may precede its time by this (the step's sample stamp)
+FIRE_LATE_S: Final = 0.5  # SIGUSR1 / the timers go once the hold's stderr line is read
+INJECT_LATE_S: Final = 1.0  # the injector counts 40 hold steps: DebugOut at ~53 ms, misses
+DURATION_TOL_S: Final = 0.3  # the --duration stop, after READY
+WALL_JUMP_S: Final = 3600.0  # tests.faults.inject's wall-clock step
+WALL_JUMP_TOL_S: Final = 60.0
+GAP_FROM_S: Final = 0.3  # a step gap "at the fault" starts this close to it
+DEPARTURES: Final = ("failsafe", "stop", "crash", "phase")
+
+
+@dataclass
+class Verdict:
+    """One row of the campaign's table, and what was wrong (empty: passed)."""
+
+    name: str
+    what: str
+    end: str
+    code: int | None
+    message: str
+    commands: int
+    max_tilt_counts: float
+    max_gas: int
+    config0_sent: bool
+    released_by: str
+    logs: str
+    problems: list[str]
+    touchdowns_mps: list[float] = field(default_factory=list)
+    fired: str = ""  # when the fault fired, after the hold began
+    record: str = ""  # the daemon's first reaction after the fault
+
+    def row(self) -> dict[str, Any]:
+        """The verdict as a JSON-able dict, with ``ok``."""
+        return self.__dict__ | {"ok": not self.problems}
+
+
+def _message(flight: Flight) -> str:
+    """The ``error:`` line if any, else the JSON summary's reason."""
+    for line in reversed(flight.stderr.splitlines()):
+        if line.startswith("error:"):
+            return line.removeprefix("error:").strip()
+    for line in reversed(flight.stdout.splitlines()):
+        try:
+            obj = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(obj, dict) and isinstance(obj.get("reason"), str):
+            return str(obj["reason"])
+    return ""
+
+
+def _extern_end(flight: Flight) -> tuple[bool | None, str, float]:
+    """(extern control applied at the end, what ended it, the height then) from the sim."""
+    active: bool | None = None
+    by = ""
+    height_m = math.nan
+    for rec in flight.sim_lines:
+        if rec.get("event") == "sim fc extern control":
+            active = bool(rec.get("active"))
+            by = str(rec.get("by", ""))
+            height_m = float(rec.get("height_m", math.nan))
+    return active, by, height_m
+
+
+def _fc_commands(flight: Flight) -> dict[str, Any] | None:
+    """The sim's summary of every ExternControl the FC took."""
+    for rec in flight.sim_lines:
+        if rec.get("event") == "sim fc commands":
+            return rec
+    return None
+
+
+def _truth_text(folder: Path) -> str | None:
+    for path in (folder / "truth.txt", folder.parent / "truth.txt"):
+        if path.is_file():
+            return path.read_text(encoding="utf-8")
+    return None
+
+
+def _truth_heights(text: str | None) -> list[float]:
+    if text is None:
+        return []
+    rows = [r.split() for r in text.splitlines()[1:] if not r.lstrip().startswith("#")]
+    return [float(r[3]) for r in rows if len(r) == 4]
+
+
+def _touchdowns(text: str | None) -> list[float]:
+    """The simulator's touchdown speeds (m/s) after the vehicle first rose above 0.3 m."""
+    if text is None:
+        return []
+    rows = [r.split() for r in text.splitlines()[1:] if not r.lstrip().startswith("#")]
+    up = [float(r[0]) for r in rows if len(r) == 4 and float(r[3]) > 0.3]
+    return [v for t, v in parse_touchdowns(text) if up and t > up[0]]
+
+
+def _after(t_s: float, hold_s: float) -> str:
+    return f"+{t_s - hold_s:.2f} s"
+
+
+def _fault_time(flight: Flight, hold_s: float, problems: list[str]) -> float | None:
+    """When the fault hit (host monotonic s), from its own record; a problem if it did not
+    fire, or not at its time after the hold began. None: no fault, or never fired."""
+    sc = flight.scenario
+    times: list[float] = []
+    if sc.sim_faults:
+        scheduled = parse_faults(sc.sim_faults)
+        fired = [r for r in flight.sim_lines if r.get("event") == "sim fault"]
+        names = [str(r.get("fault")) for r in fired]
+        if names != [str(f) for f in scheduled]:
+            problems.append(f"the simulator fired {names}, scheduled {sc.sim_faults}")
+        for fault, rec in zip(scheduled, fired, strict=False):
+            t_s, mono_s = float(rec.get("t_s", math.nan)), float(rec.get("mono_s", math.nan))
+            late_clock = t_s - fault.at_s
+            late_flight = mono_s - hold_s - fault.at_s
+            if not (
+                -FIRE_EARLY_S <= late_clock <= FIRE_LATE_S
+                and -FIRE_EARLY_S <= late_flight <= FIRE_LATE_S
+            ):
+                problems.append(
+                    f"{fault} fired at {t_s:.2f} s on the fault clock, "
+                    f"{mono_s - hold_s:.2f} s after the hold began"
+                )
+            times.append(mono_s)
+    if sc.inject is not None:
+        armed = re.search(
+            rf"^inject: {re.escape(sc.inject)} armed at ([\d.]+)$", flight.stderr, re.M
+        )
+        if armed is None:
+            problems.append(f"the injector never armed {sc.inject}")
+        else:
+            t = float(armed.group(1))
+            if not -FIRE_EARLY_S <= t - hold_s - FAULT_AT_S <= INJECT_LATE_S:
+                problems.append(f"{sc.inject} armed {t - hold_s:.2f} s after the hold began")
+            times.append(t)
+        if f"inject: {sc.inject} fired=True" not in flight.stderr:
+            problems.append(f"{sc.inject} never fired")
+    for at_s, sig in sc.send:
+        sent = [t for t, s in flight.sent if s == sig]
+        name = signal.Signals(sig).name
+        if not sent:
+            problems.append(f"{name} was never sent (the daemon had gone)")
+            continue
+        if not -FIRE_EARLY_S <= sent[0] - hold_s - at_s <= FIRE_LATE_S:
+            problems.append(f"{name} sent {sent[0] - hold_s:.2f} s after the hold began")
+        times.append(sent[0])
+    return min(times) if times else None
+
+
+def _wall_clock_jump_s(stderr: str) -> float:
+    """The largest step between consecutive timestamps of the daemon's JSON log lines (s)."""
+    stamps: list[float] = []
+    for line in stderr.splitlines():
+        try:
+            rec = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(rec, dict) and isinstance(rec.get("timestamp"), str):
+            text = rec["timestamp"].replace("Z", "+00:00")
+            stamps.append(datetime.fromisoformat(text).timestamp())
+    return max((b - a for a, b in itertools.pairwise(stamps)), default=0.0)
+
+
+def _describe(e: Event) -> str:
+    f = e.fields
+    if e.event == "failsafe":
+        return f"{f.get('cause')} {f.get('action')}"
+    if e.event == "stop":
+        return f"stop {f.get('request')}"
+    if e.event == "crash":
+        return f"crash in {f.get('task')}"
+    if e.event == "phase":
+        return f"phase {f.get('to')}"
+    return e.event
+
+
+def _record_checks(
+    sc: Scenario,
+    events: list[Event],
+    summary: dict[str, Any],
+    hold_s: float,
+    fault_s: float,
+    problems: list[str],
+) -> str:
+    """The daemon's record of the fault and how its flight differs from a hover (module
+    doc); returns its first reaction, for the table."""
+    ready = [e.t_ns / NS for e in events if e.event == "ready"]
+    after = [e for e in events if e.t_ns / NS >= fault_s - FIRE_EARLY_S]
+    reactions = [e for e in after if e.event in DEPARTURES]
+    quiet_until = fault_s - FIRE_EARLY_S
+    duration_stop = [
+        e for e in events if e.event == "stop" and e.fields.get("request") == "duration"
+    ]
+    if sc.hover_like and duration_stop:
+        quiet_until = duration_stop[0].t_ns / NS - FIRE_EARLY_S
+    noise = [
+        e
+        for e in events
+        if e.event in ("failsafe", "stop", "crash") and hold_s <= e.t_ns / NS < quiet_until
+    ]
+    if noise:
+        e = noise[0]
+        when = "before the fault" if e.t_ns / NS < fault_s else "in a fault that must not end it"
+        problems.append(f"{_describe(e)} at {_after(e.t_ns / NS, hold_s)} after HOLD, {when}")
+    raised = {str(e.fields.get("cause")) for e in after if e.event == "failsafe"}
+    for cause in sc.causes:
+        if cause not in raised:
+            problems.append(f"no {cause} failsafe after the fault (raised: {sorted(raised)})")
+    if sc.stop is not None and not any(
+        e.event == "stop" and e.fields.get("request") == sc.stop for e in after
+    ):
+        problems.append(f"no {sc.stop} stop logged after the fault")
+    if sc.crash_task is not None and not any(
+        e.event == "crash" and e.fields.get("task") == sc.crash_task for e in after
+    ):
+        problems.append(f"no crash of the {sc.crash_task} task logged after the fault")
+    for section, key, least in sc.counters:
+        got = summary.get(section, {}).get(key) if isinstance(summary.get(section), dict) else None
+        if not isinstance(got, int | float) or got < least:
+            problems.append(f"flight.json {section}.{key} = {got}, expected >= {least}")
+    for key, pattern in sc.summary:
+        if not re.search(pattern, str(summary.get(key))):
+            problems.append(f"flight.json summary {key} = {summary.get(key)!r} !~ {pattern!r}")
+    steps = [e.t_ns / NS for e in events if e.event == "step"]
+    if sc.step_gap_s is not None:
+        gaps = [
+            (steps[i + 1] if i + 1 < len(steps) else math.inf) - t
+            for i, t in enumerate(steps)
+            if fault_s - GAP_FROM_S <= t <= fault_s + GAP_FROM_S
+        ]
+        if max(gaps, default=0.0) < sc.step_gap_s:
+            problems.append(
+                f"longest gap between steps at the fault {max(gaps, default=0.0):.2f} s"
+                f" < {sc.step_gap_s} s: the daemon did not see the FC go silent"
+            )
+    if sc.hover_like:
+        if not duration_stop or not ready:
+            problems.append("no --duration stop: the flight did not run as a hover")
+            return "no --duration stop"
+        t_stop = duration_stop[0].t_ns / NS - ready[0]
+        if abs(t_stop - sc.duration_s) > DURATION_TOL_S:
+            problems.append(f"--duration stop {t_stop:.2f} s after READY, not {sc.duration_s:g}")
+        return f"as a hover: --duration stop at {t_stop:.2f} s"
+    if reactions:
+        first_s, what = reactions[0].t_ns / NS, _describe(reactions[0])
+    elif steps:
+        first_s, what = steps[-1], "logs end"
+    else:
+        problems.append("nothing logged after the fault")
+        return "-"
+    if first_s - fault_s > sc.react_s:
+        problems.append(
+            f"the hold went on {first_s - fault_s:.2f} s after the fault (> {sc.react_s} s)"
+        )
+    if duration_stop:
+        problems.append("stopped by --duration, as a plain hover")
+    return f"{what} {first_s - fault_s:+.2f} s"
+
+
+def judge(flight: Flight) -> Verdict:
+    """The verdict on one flight (module docstring)."""
+    sc = flight.scenario
+    problems: list[str] = []
+    message = _message(flight)
+    if flight.code != sc.expect_code:
+        problems.append(f"exit code {flight.code}, expected {sc.expect_code}")
+    if not re.search(sc.expect_message, message):
+        problems.append(f"message {message!r} does not match {sc.expect_message!r}")
+    if "Traceback" in flight.stderr and sc.inject is None:
+        problems.append("a traceback on stderr")
+    truth = _truth_text(flight.folder)
+    heights = _truth_heights(truth)
+    active, by, off_height_m = _extern_end(flight)
+    final_h = heights[-1] if heights else math.nan
+    if not heights or max(heights) < LANDED_M:
+        end = "ground"
+    elif active:
+        end = "EXTERN STILL ON"
+    else:  # on the floor when the FC stopped taking our commands, or in the air
+        end = "landed" if off_height_m < LANDED_M else "released"
+    if end not in sc.expect_end:
+        problems.append(f"ended {end} (height {final_h:.2f} m), expected {'/'.join(sc.expect_end)}")
+    touchdowns = _touchdowns(truth)
+    # our landing (released: the simulated pilot's gas is down, it drops; the hold counter:
+    # the FC flew our last command alone, the port gone)
+    if end == "landed" and by != "hold counter":
+        if not touchdowns:
+            problems.append("landed, but the simulator saw no touchdown after the take-off")
+        elif max(touchdowns) > MAX_TOUCHDOWN_MPS:
+            problems.append(f"touchdown at {max(touchdowns):.2f} m/s > {MAX_TOUCHDOWN_MPS} m/s")
+    cfg = Config()
+    if (flight.folder / "flight.json").is_file():
+        try:
+            cfg = flown_config(flight.folder)
+        except (MkflightError, OSError, ValueError) as err:
+            problems.append(f"flight.json: {err}")
+    fc_view = _fc_commands(flight)
+    if fc_view is None:
+        problems.append("the sim did not say which commands the FC took")
+    elif fc_view.get("frames", 0):
+        # the FC's extremes: the largest tilt with zero yaw, the gas range's two ends
+        tilt, yaw = float(fc_view["max_tilt_counts"]), int(fc_view["max_yaw_counts"])
+        extremes = [
+            (tilt, 0.0, yaw, int(fc_view["min_gas_counts"])),
+            (0.0, 0.0, 0, int(fc_view["max_gas_counts"])),
+        ]
+        if bad := limit_violations(extremes, cfg):
+            problems.append(f"the FC took a command out of limits: {bad[0]}")
+    commands = 0
+    max_tilt = 0.0
+    max_gas = 0
+    config0 = False
+    logs = "none"
+    fired = record = "-"
+    if flight.folder.is_dir() and any(flight.folder.iterdir()):
+        try:
+            data = load_flight(flight.folder)
+        except (MkflightError, OSError, ValueError) as err:
+            logs = f"UNREADABLE: {err}"
+            problems.append(logs)
+        else:
+            logs = f"{len(data.imu)} + {len(data.laser)} rows"
+            if data.warnings:
+                logs += f", {len(data.warnings)} warning(s)"
+            cmds = data.commands
+            commands = len(cmds)
+            if commands:
+                pairs = zip(cmds["nick"], cmds["roll"], strict=True)
+                max_tilt = max(math.hypot(float(n), float(r)) for n, r in pairs)
+                max_gas = int(cmds["gas"].max())
+                config0 = int(cmds["config"][-1]) == 0
+                counts = zip(cmds["nick"], cmds["roll"], cmds["yaw"], cmds["gas"], strict=True)
+                if bad := limit_violations(counts, cfg):
+                    problems.append(f"{len(bad)} commands out of limits, e.g. {bad[0]}")
+            events = list(data.events)
+            holds = [
+                e.t_ns / NS for e in events if e.event == "phase" and e.fields.get("to") == "HOLD"
+            ]
+            if sc.in_air and not holds:
+                problems.append("never reached HOLD: the fault did not hit a hovering vehicle")
+            if holds:
+                hold_s = holds[0]
+                fault_s = _fault_time(flight, hold_s, problems)
+                if fault_s is None and not (sc.sim_faults or sc.inject or sc.send):
+                    fault_s = hold_s + FAULT_AT_S  # the baseline: a hover all along
+                if fault_s is not None:
+                    fired = _after(fault_s, hold_s) if sc.name != "baseline" else "-"
+                    info = data.info or {}
+                    summary = info.get("summary") or {}
+                    record = _record_checks(sc, events, summary, hold_s, fault_s, problems)
+            if sc.inject == "wall-clock-jump":
+                jump_s = _wall_clock_jump_s(flight.stderr)
+                if abs(jump_s - WALL_JUMP_S) > WALL_JUMP_TOL_S:
+                    problems.append(
+                        f"the daemon's log timestamps jumped {jump_s:.0f} s, not {WALL_JUMP_S:g}:"
+                        " the wall clock was not shifted"
+                    )
+                record += f"; its log stamps jumped {jump_s:+.0f} s"
+            kills = [t for t, s in flight.sent if s == signal.SIGKILL]
+            if kills:
+                steps = [e.t_ns for e in data.events if e.event == "step"]
+                gap_s = kills[0] - steps[-1] / NS if steps else math.inf
+                if not 0 <= gap_s < 0.5:
+                    problems.append(f"last logged step {gap_s:.2f} s before the kill")
+                logs += f", last step {gap_s * 1000:.0f} ms before the kill"
+    if sc.by_fc and by != "hold counter":
+        problems.append(f"extern control was not ended by the FC's hold counter (by {by or '?'})")
+    if sc.config0 is True and by != "command":
+        problems.append(f"extern control was not ended by our Config = 0 (by {by or '?'})")
+    if sc.in_air and end == "ground":
+        problems.append("never took off")
+    return Verdict(
+        name=sc.name,
+        what=sc.what,
+        end=end,
+        code=flight.code,
+        message=message,
+        commands=commands,
+        max_tilt_counts=round(max_tilt, 1),
+        max_gas=max_gas,
+        config0_sent=config0,
+        released_by=by,
+        logs=logs,
+        problems=problems,
+        touchdowns_mps=[round(v, 2) for v in touchdowns],
+        fired=fired,
+        record=record,
+    )
+
+
+def report_row(verdict: Verdict) -> None:
+    """Append the verdict to ``$MKFLIGHT_FAULTS_REPORT`` (JSON lines) if it is set."""
+    path = os.environ.get("MKFLIGHT_FAULTS_REPORT")
+    if path:
+        with open(path, "a", encoding="utf-8") as f:
+            f.write(json.dumps(verdict.row()) + "\n")
