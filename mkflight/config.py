@@ -261,17 +261,66 @@ class _YamlLoader(yaml.SafeLoader):
     """
 
 
-_YamlLoader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
-    list("-+0123456789"),
-)
+class _YamlDumper(yaml.SafeDumper):
+    """PyYAML's safe dumper that quotes what :class:`_YamlLoader` would read as a float.
+
+    Its stock resolver writes the string "1e-3" unquoted, which our loader reads back
+    as the number 0.001: a file we write must read back as what we wrote.
+    """
+
+
+_EXPONENT_FLOAT = re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$")
+for _yaml_class in (_YamlLoader, _YamlDumper):
+    _yaml_class.add_implicit_resolver(
+        "tag:yaml.org,2002:float", _EXPONENT_FLOAT, list("-+0123456789")
+    )
 _NON_FINITE = re.compile(r"[-+]?(?:nan|inf|infinity)", re.IGNORECASE)
 
 
 def _load_yaml(text: str) -> Any:
     """Parse YAML safely (never a Python object tag), with :class:`_YamlLoader`."""
     return yaml.load(text, Loader=_YamlLoader)  # a SafeLoader: no Python tags
+
+
+def read_yaml(path: str | Path) -> dict[str, Any]:
+    """Read the YAML config file ``path`` as a mapping of sections (an empty file: ``{}``).
+
+    The one reader of config files (:func:`load_config`, ``calibrate --write-config``):
+    a file one command accepts, another must not refuse (PyYAML's ``safe_load`` reads
+    ``1e-4`` as a string). Not validated: that is :func:`config_from_dict`'s job.
+
+    Raises:
+        ConfigError: unreadable file, not UTF-8, invalid YAML, or a top level that is not
+            a mapping; the message starts with the path.
+    """
+    source = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as err:
+        msg = f"{source}: cannot read config file: {err.strerror or err}"
+        raise ConfigError(msg) from err
+    except UnicodeDecodeError as err:
+        msg = f"{source}: not UTF-8 text (byte {err.start}): {err.reason}"
+        raise ConfigError(msg) from err
+    try:
+        data = _load_yaml(text)
+    except yaml.YAMLError as err:
+        msg = f"{source}: invalid YAML: {err}"
+        raise ConfigError(msg) from err
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        msg = f"{source}: the top level must be a mapping of sections"
+        raise ConfigError(msg)
+    return data
+
+
+def dump_yaml(data: dict[str, Any]) -> str:
+    """A config mapping as YAML text that :func:`read_yaml` reads back unchanged.
+
+    Keys keep their order; comments of a file that was read are not kept.
+    """
+    return yaml.dump(data, Dumper=_YamlDumper, sort_keys=False, allow_unicode=True)
 
 
 def _check_finite(obj: Any, path: str, source: str) -> None:
@@ -381,28 +430,11 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
         ConfigError: unreadable file, bad YAML, unknown key, wrong type, out-of-range or
             non-finite value; the message names the file and the dotted key.
     """
-    data: Any = {}
+    data: dict[str, Any] = {}
     source = "config"
     if path is not None:
         source = str(path)
-        try:
-            text = Path(path).read_text(encoding="utf-8")
-        except OSError as err:
-            msg = f"{source}: cannot read config file: {err.strerror or err}"
-            raise ConfigError(msg) from err
-        except UnicodeDecodeError as err:
-            msg = f"{source}: not UTF-8 text (byte {err.start}): {err.reason}"
-            raise ConfigError(msg) from err
-        try:
-            data = _load_yaml(text)
-        except yaml.YAMLError as err:
-            msg = f"{source}: invalid YAML: {err}"
-            raise ConfigError(msg) from err
-        if data is None:
-            data = {}
-        if not isinstance(data, dict):
-            msg = f"{source}: the top level must be a mapping of sections"
-            raise ConfigError(msg)
+        data = read_yaml(path)
     for item in overrides or []:
         parts, value = parse_override(item)
         apply_override(data, parts, value)

@@ -8,10 +8,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from mkflight.analysis.calibrate import AccFit, CalibrationInputError, fit_acc_scale, parse_rows
-from mkflight.config import config_from_dict
+from mkflight.config import config_from_dict, dump_yaml, read_yaml
 from mkflight.errors import ConfigError
 
 _KEYS = {"nick": "acc_nick_counts_per_g", "roll": "acc_roll_counts_per_g"}
@@ -27,7 +25,8 @@ def cmd_calibrate_acc(*, file: str, axis: str, as_json: bool, write_config: str 
         as_json: print one object ``{"k_counts_per_g", "residual_rms_counts", "rows"}``.
         write_config: a YAML config file whose ``mk.acc_<axis>_counts_per_g`` is set to k
             (created if missing). Other keys are kept, but the file is re-written by
-            ``yaml.safe_dump``: its comments and formatting are not preserved.
+            :func:`~mkflight.config.dump_yaml`: its comments and formatting are not
+            preserved.
 
     Raises:
         CalibrationInputError: FILE unreadable, a malformed row (naming file and line), no
@@ -82,32 +81,21 @@ def _print_fit(fit: AccFit, axis: str, file: str) -> None:
 def _write_k(path: str, key: str, k_counts_per_g: float) -> None:
     """Set ``mk.<key>`` in the YAML file ``path``, keep the other keys, validate, then write.
 
-    Comments are not preserved (``yaml.safe_load`` → ``yaml.safe_dump(sort_keys=False)``).
-    The file is replaced atomically, and only if the result is a valid configuration.
+    The file is read by :func:`~mkflight.config.read_yaml`, as ``--config`` reads it (a
+    gain written ``1e-4`` is a number to both), and written back by
+    :func:`~mkflight.config.dump_yaml`, which it reads back unchanged. Comments are not
+    preserved. The file is replaced atomically, and only if the result is a valid
+    configuration.
     """
     target = Path(path)
-    data: Any = {}
-    if target.exists():
-        try:
-            data = yaml.safe_load(target.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError) as err:
-            msg = f"{path}: cannot read config file: {err}"
-            raise ConfigError(msg) from err
-        except yaml.YAMLError as err:
-            msg = f"{path}: invalid YAML: {err}"
-            raise ConfigError(msg) from err
-        if data is None:
-            data = {}
-    if not isinstance(data, dict):
-        msg = f"{path}: the top level must be a mapping of sections"
-        raise ConfigError(msg)
+    data: dict[str, Any] = read_yaml(path) if target.exists() else {}
     mk = data.setdefault("mk", {})
     if not isinstance(mk, dict):
         msg = f"{path}: mk: must be a mapping of keys"
         raise ConfigError(msg)
     mk[key] = round(k_counts_per_g, 3)
     config_from_dict(data, path)
-    text = yaml.safe_dump(data, sort_keys=False)
+    text = dump_yaml(data)
     tmp: str | None = None
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
