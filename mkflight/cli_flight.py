@@ -245,7 +245,8 @@ def add_replay_command(
         "replay",
         help="replay a recorded flight through mock serial ports into the daemon",
         description="Plays a flight folder's recorded FC and URG bytes (mk.raw, laser.raw) "
-        "through two pseudo-terminals into the unchanged flight daemon, on a lock-step clock "
+        "into the unchanged flight daemon (from memory with --fast, the default; through two "
+        "pseudo-terminals with --speed or --ptys), on a lock-step clock "
         "that gives every byte its recorded time, and writes a new flight folder. With the "
         "recorded configuration the ExternControl bytes and both tables must come out "
         "identical (the determinism check: exit 1 and the first difference if not); with "
@@ -278,6 +279,12 @@ def add_replay_command(
     replay.add_argument(
         "--rematch", action="store_true", help="run the scan matcher again on the replayed scans"
     )
+    replay.add_argument(
+        "--ptys",
+        action="store_true",
+        help="play through two pseudo-terminals and the real serial stack even with --fast "
+        "(slower; --speed always does)",
+    )
     replay.add_argument("--json", action="store_true", help="the report as one JSON object")
     replay.set_defaults(
         func=command(
@@ -287,6 +294,7 @@ def add_replay_command(
             overrides="overrides",
             out="out",
             rematch="rematch",
+            ptys="ptys",
             as_json="json",
         )
     )

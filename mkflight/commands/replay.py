@@ -228,6 +228,7 @@ def cmd_replay(
     out: str | None,
     rematch: bool,
     as_json: bool,
+    ptys: bool = False,
 ) -> int:
     """Replay ``log_dir`` (see the module docstring).
 
@@ -242,6 +243,7 @@ def cmd_replay(
             overrides=overrides,
             speed=speed,
             rematch=rematch,
+            ptys=ptys,
             on_progress=None if as_json else _updater(bar),
         )
     # The report quotes the log (a stop reason, table rows): escaped, nothing a terminal obeys.

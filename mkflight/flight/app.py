@@ -72,6 +72,8 @@ from mkflight.flight.tasks import (
     mk_task,
     watchdog_task,
 )
+from mkflight.io.serial import open_serial
+from mkflight.io.stream import ByteStream
 from mkflight.mk.link import MkLink
 from mkflight.mk.messages import ExternControl, Ppm
 from mkflight.msgs import Command, ImuSample, plausible_imu
@@ -209,7 +211,12 @@ class FlightApp:
         """Both ports as links (pre-flight checks 'FC port' and 'laser port')."""
         clock = self.clock
         self.link = await open_mk(
-            self.opts.mk_port, self.cfg, clock, self._mk_tap, lambda p: self.mark("mk", "o", p)
+            self.opts.mk_port,
+            self.cfg,
+            clock,
+            self._mk_tap,
+            lambda p: self.mark("mk", "o", p),
+            self.open_port,
         )
         self.driver = await open_laser(
             self.opts.laser_port,
@@ -217,7 +224,17 @@ class FlightApp:
             clock,
             self._laser_tap,
             lambda p: self.mark("laser", "o", p),
+            self.open_port,
         )
+
+    async def open_port(self, path: str, baudrate: int) -> ByteStream:
+        """Open one of the daemon's ports (a serial port; a replay plays one from memory).
+
+        Raises:
+            PortNotFoundError: ``path`` does not exist.
+            LinkError: it cannot be opened.
+        """
+        return await open_serial(path, baudrate)
 
     async def run_preflight(self) -> PreflightReport:
         """Open the logs and the links, start the matcher and run every check.

@@ -7,7 +7,7 @@ cannot be opened is a failed pre-flight check, named.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 
 from mkflight.clock import Clock
 from mkflight.config import Config
@@ -23,26 +23,35 @@ URG_BAUDRATE = 115200  # USB CDC-ACM ignores it (scip2.md §1)
 
 #: Records that a port was (re)opened: ``mark(path)``.
 Mark = Callable[[str], None]
+#: Opens a port: ``open_port(path, baudrate)`` (a serial port; a replay's memory port).
+PortOpener = Callable[[str, int], Awaitable[ByteStream]]
 
 
-async def _open(path: str, baudrate: int, check: str) -> ByteStream:
+async def _open(path: str, baudrate: int, check: str, open_port: PortOpener) -> ByteStream:
     try:
-        return await open_serial(path, baudrate)
+        return await open_port(path, baudrate)
     except LinkError as err:
         raise PreflightError(check=check, detail=str(err)) from err
 
 
-async def open_mk(path: str, cfg: Config, clock: Clock, tap: Tap, mark: Mark) -> MkLink:
+async def open_mk(
+    path: str,
+    cfg: Config,
+    clock: Clock,
+    tap: Tap,
+    mark: Mark,
+    open_port: PortOpener = open_serial,
+) -> MkLink:
     """The FlightCtrl link on ``path``, started (its reader running).
 
     Raises:
         PreflightError: the port cannot be opened ('FC port').
     """
-    stream = await _open(path, cfg.mk.baudrate, "FC port")
+    stream = await _open(path, cfg.mk.baudrate, "FC port", open_port)
     mark(path)
 
     async def reopen() -> ByteStream:
-        again = await open_serial(path, cfg.mk.baudrate)
+        again = await open_port(path, cfg.mk.baudrate)
         mark(path)
         return again
 
@@ -58,17 +67,24 @@ async def open_mk(path: str, cfg: Config, clock: Clock, tap: Tap, mark: Mark) ->
     return link
 
 
-async def open_laser(path: str, cfg: Config, clock: Clock, tap: Tap, mark: Mark) -> UrgDriver:
+async def open_laser(
+    path: str,
+    cfg: Config,
+    clock: Clock,
+    tap: Tap,
+    mark: Mark,
+    open_port: PortOpener = open_serial,
+) -> UrgDriver:
     """The URG driver on ``path``, started.
 
     Raises:
         PreflightError: the port cannot be opened ('laser port').
     """
-    stream = await _open(path, URG_BAUDRATE, "laser port")
+    stream = await _open(path, URG_BAUDRATE, "laser port", open_port)
     mark(path)
 
     async def reopen() -> ByteStream:
-        again = await open_serial(path, URG_BAUDRATE)
+        again = await open_port(path, URG_BAUDRATE)
         mark(path)
         return again
 

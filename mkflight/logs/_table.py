@@ -112,6 +112,11 @@ class TableWriter(LineFile):
         self.write_line(line)
         self._last_index = index
 
+    @property
+    def last_index(self) -> int | None:
+        """The index of the last row written (None before the first)."""
+        return self._last_index
+
 
 def _parse(fmt: TableFormat, path: Path, line_no: int, line: str) -> tuple[Value, ...]:
     """One row's values, or ReplayError naming the file, the line and the column."""

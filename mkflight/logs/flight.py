@@ -26,7 +26,7 @@ and the line or byte; a tail cut short by a killed process is dropped and report
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -52,11 +52,19 @@ __all__ = [
     "SAMPLE_DTYPE",
     "TRUTH_DTYPE",
     "FlightData",
+    "check_port_contents",
     "event_table",
     "extern_control_frames",
     "extern_controls",
     "load_flight",
 ]
+
+#: What each port's device sends, to tell a recording from the other port's: every
+#: FlightCtrl frame starts with '#', which no SCIP 2.0 reply contains (its data characters
+#: are 0x30-0x6F), and every SCIP reply ends with LF LF (mk-serial.md §2, scip2.md §2).
+_SIGNATURE: Final = {"mk": b"#", "laser": b"\n\n"}
+_SIGNATURE_TEXT: Final = {"mk": "FlightCtrl frames ('#')", "laser": "SCIP replies (LF LF)"}
+_RAW_NAME: Final = {"mk": "mk.raw", "laser": "laser.raw"}
 
 NS_PER_S: Final = 1e9
 MK_RAW: Final = "mk.raw"
@@ -170,6 +178,8 @@ def load_flight(folder: str | Path) -> FlightData:
     events, events_found = _events(path / events_log.FILE_NAME, warnings)
     mk = _raw(path / MK_RAW, warnings)
     laser_raw = _raw(path / LASER_RAW, warnings)
+    if mk is not None and laser_raw is not None:
+        check_port_contents({"mk": mk, "laser": laser_raw}, strict=False)
     t0_ns: int | None = None
     for rec in (mk, laser_raw):
         if t0_ns is None and rec is not None:
@@ -238,6 +248,32 @@ def _events(path: Path, warnings: list[str]) -> tuple[list[Event], bool]:
     if data.truncated:
         warnings.append(f"{path}:{_line_count(path)}: incomplete last event dropped")
     return data.events, True
+
+
+def check_port_contents(recordings: Mapping[str, RawRecording], *, strict: bool) -> None:
+    """Each recording ("mk", "laser") holds its own device's bytes, not the other's.
+
+    Raises:
+        ReplayError: the two look swapped (each holds the other device's bytes), or, if
+            ``strict``, one holds nothing of its device's; naming the file.
+    """
+    seen = {
+        port: {dev: sig in rec.payload("r")[:65536] for dev, sig in _SIGNATURE.items()}
+        for port, rec in recordings.items()
+    }
+    for port, rec in recordings.items():
+        if seen[port][port]:
+            continue
+        other = "laser" if port == "mk" else "mk"
+        if seen[port][other] and other in seen and not seen[other][other]:
+            msg = (
+                f"{rec.path}: holds {_SIGNATURE_TEXT[other]}, the other port's bytes: "
+                f"{_RAW_NAME[port]} and {_RAW_NAME[other]} look swapped"
+            )
+            raise ReplayError(msg)
+        if strict:
+            msg = f"{rec.path}: no {_SIGNATURE_TEXT[port]} among the bytes read"
+            raise ReplayError(msg)
 
 
 def _raw(path: Path, warnings: list[str]) -> RawRecording | None:

@@ -33,8 +33,9 @@ kernel in one ``write`` as it happens (the file is unbuffered), so a killed proc
 loses nothing but, at worst, the tail of the record being written: the reader keeps every
 complete record and reports the byte offset of the incomplete one
 (:attr:`RawRecording.truncated_at`). A broken header (wrong magic, unknown version, cut
-short), an unknown record kind, or a record running past the end whose time is before
-the previous one's or more than a day after it (damage, not a kill) is a
+short), an unknown record kind, a record whose time is before the previous one's, or a
+record running past the end whose time is more than a day after the previous one's
+(damage, not a kill) is a
 :class:`~mkflight.errors.ReplayError` naming the file and the byte offset.
 """
 
@@ -348,10 +349,16 @@ def read_raw(path: str | Path) -> RawRecording:
                 "the file is corrupt here"
             )
             raise ReplayError(msg)
-        prev_ns = t_ns
         if end > size:
             truncated_at = offset
             break
+        if prev_ns is not None and t_ns < prev_ns:
+            msg = (
+                f"{path}: byte {offset}: record time {t_ns} ns is before the previous "
+                f"record's ({prev_ns} ns): records out of time order, the file is damaged"
+            )
+            raise ReplayError(msg)
+        prev_ns = t_ns
         append(RawRecord(t_ns, kind, bytes(view[start:end])))
         offset = end
     return RawRecording(path, header, records, size, truncated_at)

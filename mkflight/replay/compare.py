@@ -72,6 +72,11 @@ def decode_frames(frames: list[tuple[int, bytes]]) -> np.ndarray:
     return out
 
 
+#: How long before the end of a recording a replayed frame may answer a read whose
+#: original answer came after the end (one 50 ms step and its margin).
+LAST_STEP_NS = 60_000_000
+
+
 def compare_commands(
     original: list[tuple[int, bytes]],
     replayed: list[tuple[int, bytes]],
@@ -80,13 +85,19 @@ def compare_commands(
 ) -> CommandComparison:
     """Compare two ExternControl streams (see the module docstring).
 
-    ``end_ns``: when the original recording ended; replayed frames sent later (the
-    daemon handing back after the recording of a killed flight stops) are counted in
-    ``n_after_end`` and not compared.
+    ``end_ns``: when the original recording ended (a killed flight) or stops being whole
+    (a raw file cut short); frames of either sent later are not compared (the replayed
+    ones are counted in ``n_after_end``).
     """
     after = 0
     if end_ns is not None:
         kept = [f for f in replayed if f[0] <= end_ns]
+        original = [f for f in original if f[0] <= end_ns]
+        # The original wrote each frame a little after the read that caused it (the
+        # step's CPU time), the replay at that read's time: a frame answering the last
+        # reads before the end is in the replay but may be cut from the original.
+        while len(kept) > len(original) and kept[-1][0] > end_ns - LAST_STEP_NS:
+            kept.pop()
         after, replayed = len(replayed) - len(kept), kept
     n = min(len(original), len(replayed))
     first: FirstDifference | None = None

@@ -34,6 +34,7 @@ from mkflight.flight.laser_pipeline import LaserResult
 from mkflight.flight.matcher_worker import MatcherWorker
 from mkflight.flight.sdnotify import Notifier
 from mkflight.flight.step import ImuStepOutput
+from mkflight.io.stream import ByteStream
 from mkflight.msgs import ImuSample, Pose2D, Scan
 from mkflight.replay.feeder import Feeder
 from mkflight.replay.inputs import RecordedScan
@@ -123,8 +124,12 @@ class ReplayApp(FlightApp):
         ready_ns: int | None = None,
         subscribe_ns: int | None = None,
         step_stops: list[tuple[int, StopRequest, str]] | None = None,
+        intact_end_ns: int | None = None,
     ) -> None:
         super().__init__(cfg, opts, clock=clock, notifier=Notifier(None))
+        self._intact_end_ns = intact_end_ns
+        #: each table's last row index written by the intact end (a recording cut short)
+        self.rows_at_intact_end: dict[str, int] = {}
         self.feeder = feeder
         self._ready_ns = ready_ns
         self._subscribe_ns = subscribe_ns
@@ -136,6 +141,12 @@ class ReplayApp(FlightApp):
         self.worker = self.recorded
         feeder.closed["mk"] = lambda: self.link is not None and self.link.closed
         feeder.closed["laser"] = lambda: self.driver is not None and self.driver.closed
+
+    async def open_port(self, path: str, baudrate: int) -> ByteStream:
+        """A memory port when the feeder plays from memory, else the real (pty) open."""
+        if self.feeder.memory:
+            return self.feeder.open_memory(path)
+        return await super().open_port(path, baudrate)
 
     def _mk_tap(self, direction: str, t_ns: int, data: bytes) -> None:
         super()._mk_tap(direction, t_ns, data)
@@ -183,7 +194,16 @@ class ReplayApp(FlightApp):
         while self._step_stops and self._step_stops[0][0] <= self.core.counters.imu_steps:
             _, request, reason = self._step_stops.pop(0)
             self.request_stop(request, reason)
-        return super().step(sample)
+        out = super().step(sample)
+        if (
+            self._intact_end_ns is not None
+            and self.clock.now_ns() <= self._intact_end_ns
+            and self.logs is not None
+        ):
+            for name, writer in (("imu_50ms.log", self.logs.t4), ("laser_100ms.log", self.logs.t3)):
+                if writer.last_index is not None:
+                    self.rows_at_intact_end[name] = writer.last_index
+        return out
 
     def _on_signal(self, request: StopRequest, name: str) -> None:
         """SIGINT/SIGTERM/SIGHUP end the replay (there is no vehicle to land)."""

@@ -16,7 +16,9 @@ A recorded chunk for a port the replayed daemon does not have open (it has not r
 it yet after a loss, or it has closed it on the way out) is lost, as it would be on the
 wire; such chunks are counted.
 ``speed`` paces the clock to real time (``--speed X``); None runs as fast as the daemon
-consumes (``--fast``).
+consumes (``--fast``). ``memory`` plays each port through a
+:class:`~mkflight.replay.memport.MemoryDevice` instead of a pty: no kernel round trip and
+no real-time wait per chunk (``--fast``, unless ``--ptys``).
 
 A port may instead be served by an emulated device (``models``: the simulator's pure FC
 or URG model, :class:`~mkflight.sim.pty_server.EmulatedDevice`), which is how the seed's
@@ -34,9 +36,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from mkflight.clock import NS_PER_S
-from mkflight.errors import LinkError
+from mkflight.errors import LinkError, PortNotFoundError, ReplayError
 from mkflight.io.pty import PtyDevice
+from mkflight.io.stream import ByteStream
 from mkflight.replay.inputs import PORTS, Input
+from mkflight.replay.memport import MemoryDevice
 from mkflight.replay.vloop import VirtualClock, seconds_to_ns_ceil
 from mkflight.safety.failsafe import StopRequest
 from mkflight.sim.pty_server import EmulatedDevice
@@ -53,6 +57,11 @@ DRAIN_EVERY = 16
 #: the real sleeps' overshoot; the replayed daemon's same poll comes on time, so the device
 #: must be back a little before it - but after the poll before (>= 0.1 s earlier).
 REPLUG_LEAD_NS = 50_000_000
+#: Recorded time the daemon may run on after the last recorded input: then it is asked to
+#: stop (as by SIGTERM), and one more such span later the replay gives up (ReplayError).
+#: A replayed flight ends by itself well within it (its devices vanish with the
+#: recording's end: the FC is lost within seconds); a damaged recording must not hang.
+END_GRACE_NS = 60 * NS_PER_S
 
 
 @dataclass(slots=True)
@@ -110,8 +119,11 @@ class Feeder:
         on_stop: Callable[[StopRequest, str], None] | None = None,
         on_progress: Callable[[int], None] | None = None,
         models: dict[str, EmulatedDevice] | None = None,
+        memory: bool = False,
     ) -> None:
         self._inputs = replug_times(inputs)
+        #: ports are memory devices (no ptys): see :mod:`mkflight.replay.memport`
+        self.memory = memory
         #: ports served by an emulated device (the seed tables' replay) instead of bytes
         self.models = dict(models or {})
         self.written: dict[str, int] = dict.fromkeys(PORTS, 0)
@@ -122,7 +134,7 @@ class Feeder:
         self._on_stop = on_stop
         self._on_progress = on_progress
         self._links = {p: link_dir / p for p in PORTS}
-        self.devices: dict[str, PtyDevice] = {}
+        self.devices: dict[str, PtyDevice | MemoryDevice] = {}
         self.stats = FeedStats()
         #: bytes the daemon has read per port (its raw-recording tap counts them)
         self.consumed: dict[str, int] = dict.fromkeys(PORTS, 0)
@@ -135,6 +147,7 @@ class Feeder:
         self._wait_started: float | None = None
         self._pace0: tuple[int, float] | None = None
         self._seen_open: set[str] = set()
+        self._overrun_stop = False
 
     # ----- set-up -------------------------------------------------------------------------
 
@@ -145,7 +158,10 @@ class Feeder:
     def open_devices(self) -> None:
         """Create the ptys (call inside the running loop: they read their master ends)."""
         for p in PORTS:
-            if p in self.models:
+            if self.memory:
+                sink = self._sink(p) if p in self.models else None
+                self.devices[p] = MemoryDevice(str(self._links[p]), sink)
+            elif p in self.models:
                 self.devices[p] = _ModelDevice(f"replay-{p}", self._links[p], self._sink(p))
             else:
                 self.devices[p] = PtyDevice(f"replay-{p}", link=self._links[p])
@@ -154,6 +170,18 @@ class Feeder:
     def path(self, port: str) -> str:
         """The path the daemon opens for ``port`` (a stable symlink)."""
         return str(self._links[port])
+
+    def open_memory(self, path: str) -> ByteStream:
+        """The daemon opens ``path`` (memory mode): its device's stream.
+
+        Raises:
+            PortNotFoundError: no such port, or its device is unplugged.
+        """
+        for dev in self.devices.values():
+            if isinstance(dev, MemoryDevice) and dev.path == path:
+                return dev.open()
+        msg = f"serial port {path!r} does not exist"
+        raise PortNotFoundError(msg)
 
     def close_devices(self) -> None:
         """Remove the ptys and their links."""
@@ -232,9 +260,11 @@ class Feeder:
                 self._move(inp.t_ns)
                 self._next += 1
                 self._apply(inp, now)
-                # Wait for the bytes right here: one loop turn per chunk, not two.
-                return IN_FLIGHT_POLL_S if inp.kind == "r" else None
+                # Wait for the bytes right here: one loop turn per chunk, not two (in
+                # memory they are queued already: the loop runs the reader next).
+                return IN_FLIGHT_POLL_S if inp.kind == "r" and not self.memory else None
         if timer_ns is not None:
+            self._check_overrun(timer_ns)
             self._move(timer_ns)
             return None
         # No input left and nothing scheduled: the recording is over and the daemon waits
@@ -246,6 +276,25 @@ class Feeder:
                 return None
         msg = "replay: the daemon waits with no timer after the recording ended"
         raise RuntimeError(msg)
+
+    def _check_overrun(self, t_ns: int) -> None:
+        """After the recording: ask the daemon to stop, then give up (END_GRACE_NS)."""
+        if self._next < len(self._inputs) or self.models:
+            return
+        last_ns = self._inputs[-1].t_ns if self._inputs else 0
+        over_ns = t_ns - last_ns
+        if over_ns > 2 * END_GRACE_NS:
+            msg = (
+                f"replay: the daemon still ran {over_ns / NS_PER_S:.0f} s of recorded time "
+                "after the recording ended, and after it was asked to stop: given up"
+            )
+            raise ReplayError(msg)
+        if over_ns > END_GRACE_NS and not self._overrun_stop and self._on_stop is not None:
+            self._overrun_stop = True
+            self._on_stop(
+                StopRequest.SIGTERM,
+                f"replay: the recording ended {END_GRACE_NS // NS_PER_S} s ago",
+            )
 
     def _next_model_event(self) -> tuple[str, int | None]:
         best: tuple[str, int | None] = ("", None)
@@ -277,17 +326,26 @@ class Feeder:
         if not pending:
             self._wait_started = None
             return None
+        if self.memory:
+            # Nothing is in flight in memory: bytes still queued while the loop is idle
+            # are bytes the daemon is not reading now (a pty would wait, then give up).
+            self._give_up(pending)
+            return None
         now = time.perf_counter()
         if self._wait_started is None:
             self._wait_started = now
         if now - self._wait_started < IN_FLIGHT_MAX_S:
             return IN_FLIGHT_POLL_S
-        for p in pending:  # the daemon will not read them: do not wait again
+        self._give_up(pending)
+        return None
+
+    def _give_up(self, pending: list[str]) -> None:
+        """The daemon will not read these bytes now: count them, do not wait again."""
+        for p in pending:
             self.stats.never_read_bytes += self.stats.delivered_bytes[p] - self.consumed[p]
             self.consumed[p] = self.stats.delivered_bytes[p]
             self.received[p] = self.written[p]
         self._wait_started = None
-        return None
 
     def _move(self, t_ns: int) -> None:
         now = self._clock.now_ns()

@@ -30,6 +30,7 @@ from typing import Any
 
 from mkflight.errors import ReplayError
 from mkflight.logs.events import read_events
+from mkflight.logs.flight import check_port_contents
 from mkflight.logs.flight_json import read_flight_json
 from mkflight.logs.raw import RawRecording, read_raw
 from mkflight.msgs import Pose2D
@@ -38,6 +39,10 @@ from mkflight.safety.failsafe import StopRequest
 
 PORTS = ("mk", "laser")
 RAW_FILES = {"mk": "mk.raw", "laser": "laser.raw"}
+#: A recording whose last record comes this long before the other's (and is not a port
+#: loss, 'c') was cut short: a flight ends both within a few tens of ms.
+EARLY_END_NS = 1_000_000_000
+
 #: Stop requests that came from outside the daemon: the replay repeats them.
 EXTERNAL_STOPS = frozenset({StopRequest.SIGINT, StopRequest.SIGTERM, StopRequest.DURATION})
 
@@ -107,6 +112,8 @@ class RecordedFlight:
     #: operator stops seen in flight: (steps run when it came, request, reason)
     step_stops: list[tuple[int, StopRequest, str]] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    #: a raw file ends early (cut short): the replay is checked up to this time only
+    intact_end_ns: int | None = None
 
     @property
     def has_poses(self) -> bool:
@@ -158,6 +165,8 @@ class _EventInputs:
     stops: list[Input] = field(default_factory=list)  # before READY: by time
     step_stops: list[tuple[int, StopRequest, str]] = field(default_factory=list)
     ready_ns: int | None = None
+    #: the events file was cut short: its last whole event's time
+    cut_ns: int | None = None
 
 
 def _events(folder: Path, warnings: list[str]) -> _EventInputs:
@@ -168,7 +177,13 @@ def _events(folder: Path, warnings: list[str]) -> _EventInputs:
         return out
     data = read_events(path)
     if data.truncated:
-        warnings.append(f"{path}: last line cut short: dropped")
+        # a scan's result is logged when it is applied, up to a few 100 ms after the scan:
+        # a scan shortly before the cut may have lost its recorded result with the cut
+        out.cut_ns = data.events[-1].t_ns - EARLY_END_NS if data.events else 0
+        warnings.append(
+            f"{path}: last line cut short: dropped; the events end after line "
+            f"{len(data.events)}: the replay is checked only up to there"
+        )
     scans = out.scans
     step_ns: list[int] = []  # the k-th step event is step k
     for n, ev in enumerate(data.events, start=1):
@@ -209,6 +224,32 @@ def _events(folder: Path, warnings: list[str]) -> _EventInputs:
         if sc.step is not None and 1 <= sc.step <= len(step_ns):
             scans[seq] = dataclasses.replace(sc, due_ns=step_ns[sc.step - 1])
     return out
+
+
+def _intact_end(recordings: dict[str, RawRecording], warnings: list[str]) -> int | None:
+    """The time up to which both recordings hold the flight, if one ends early, else None.
+
+    A recording cut short (a power cut between two writes, a torn copy) stops while the
+    other goes on; a port lost in flight ends with its 'c' record instead and is played.
+    """
+    ends = {p: r.records[-1] for p, r in recordings.items() if r.records}
+    if len(ends) < len(PORTS):
+        return None
+    last_ns = max(r.t_ns for r in ends.values())
+    start_ns = min(r.header.start_t_ns for r in recordings.values())
+    early: int | None = None
+    for port, rec in recordings.items():
+        end = ends[port]
+        if last_ns - end.t_ns <= EARLY_END_NS or end.kind == "c":
+            continue
+        where = f"byte {rec.truncated_at}" if rec.truncated_at is not None else "its last record"
+        warnings.append(
+            f"{rec.path}: ends early, at {(end.t_ns - start_ns) / 1e9:.2f} s of "
+            f"{(last_ns - start_ns) / 1e9:.2f} s ({where}): the replay plays what "
+            "follows without it and checks commands and tables only up to there"
+        )
+        early = end.t_ns if early is None else min(early, end.t_ns)
+    return early
 
 
 def _first_subscribe(mk: RawRecording, ready_ns: int | None) -> int | None:
@@ -262,7 +303,11 @@ def read_recorded_flight(folder: str | Path) -> RecordedFlight:
         if rec.warning is not None:
             warnings.append(rec.warning + ": replaying what is readable")
         recordings[port] = rec
+    check_port_contents(recordings, strict=True)
+    intact_end_ns = _intact_end(recordings, warnings)
     ev = _events(folder, warnings)
+    if ev.cut_ns is not None:
+        intact_end_ns = min(ev.cut_ns, intact_end_ns or ev.cut_ns)
     merged = [i for port in PORTS for i in _port_inputs(port, recordings[port])] + ev.stops
     merged.sort(key=lambda i: i.t_ns)  # stable: one port's records keep their order
     starts = [r.header.start_t_ns for r in recordings.values()]
@@ -282,4 +327,5 @@ def read_recorded_flight(folder: str | Path) -> RecordedFlight:
         completed=completed,
         step_stops=ev.step_stops,
         warnings=warnings,
+        intact_end_ns=intact_end_ns,
     )

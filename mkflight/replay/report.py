@@ -81,11 +81,16 @@ class SeedComparison:
 
 
 def compare_tables(
-    original: Path, replayed: Path, warnings: list[str] | None = None
+    original: Path,
+    replayed: Path,
+    warnings: list[str] | None = None,
+    upto: dict[str, int] | None = None,
 ) -> list[TableComparison]:
     """Each table of the replay line by line against the original's.
 
-    A table missing from the original is not compared (a warning says so).
+    A table missing from the original is not compared (a warning says so). ``upto``: per
+    table, compare only the rows up to this index (its last column): a recording cut
+    short says nothing about the flight after its end.
     """
     out = []
     for name in TABLES:
@@ -95,6 +100,9 @@ def compare_tables(
             continue
         a = _lines(original / name)
         b = _lines(replayed / name)
+        if upto is not None:
+            last = upto.get(name, 0)
+            a, b = _upto(a, last), _upto(b, last)
         first = next((i for i, (x, y) in enumerate(zip(a, b, strict=False)) if x != y), None)
         if first is None and len(a) != len(b):
             first = min(len(a), len(b))
@@ -108,6 +116,20 @@ def compare_tables(
                 b[first] if first is not None and first < len(b) else "",
             )
         )
+    return out
+
+
+def _upto(lines: list[str], last_index: int) -> list[str]:
+    """The header and the rows whose index (the last column) is at most ``last_index``."""
+    out = lines[:1]
+    for line in lines[1:]:
+        fields = line.rsplit(maxsplit=1)
+        try:
+            index = int(fields[-1])
+        except (ValueError, IndexError):
+            index = last_index + 1
+        if index <= last_index:
+            out.append(line)
     return out
 
 

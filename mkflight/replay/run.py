@@ -86,6 +86,7 @@ def replay_flight(
     overrides: list[str] | None = None,
     speed: float | None = None,
     rematch: bool = False,
+    ptys: bool = False,
     on_progress: Callable[[int, int], None] | None = None,
 ) -> ReplayReport:
     """Replay the flight folder ``source`` into ``out_dir`` (see the module docstring).
@@ -99,6 +100,8 @@ def replay_flight(
             the daemon consumes it.
         rematch: run the scan matcher on the replayed scans even if the recorded
             results would do.
+        ptys: play through pseudo-terminals even when not paced (``speed`` None plays
+            from memory otherwise: :mod:`~mkflight.replay.memport`).
         on_progress: called with (inputs delivered, inputs in all) now and then.
 
     Raises:
@@ -121,6 +124,7 @@ def replay_flight(
         link_dir,
         speed=speed,
         on_progress=None if on_progress is None else (lambda n: on_progress(n, feeder.total)),
+        memory=speed is None and not ptys,
     )
     opts = FlightOptions(
         mk_port=feeder.path("mk"),
@@ -138,6 +142,7 @@ def replay_flight(
         ready_ns=rec.ready_ns,
         subscribe_ns=rec.subscribe_ns,
         step_stops=rec.step_stops,
+        intact_end_ns=rec.intact_end_ns,
     )
     feeder.set_stop(app.request_stop)
     cpu0, wall0 = time.process_time(), time.perf_counter()
@@ -167,12 +172,17 @@ def replay_flight(
             f"{feeder.stats.dropped} recorded chunks came after the replayed daemon had "
             f"closed the port; {feeder.stats.never_read_bytes} bytes were never read"
         )
+    end_ns = None if rec.completed else rec.end_ns
+    upto: dict[str, int] | None = None
+    if rec.intact_end_ns is not None:
+        end_ns = rec.intact_end_ns
+        upto = app.rows_at_intact_end
     return ReplayReport(
         source=rec.folder,
         out_dir=out,
         flight=report,
-        commands=compare_commands(original, replayed, end_ns=None if rec.completed else rec.end_ns),
-        tables=compare_tables(rec.folder, out, warnings),
+        commands=compare_commands(original, replayed, end_ns=end_ns),
+        tables=compare_tables(rec.folder, out, warnings, upto),
         overrides=overrides,
         rematch=not use_recorded,
         recorded_s=rec.duration_s,

@@ -135,7 +135,9 @@ def replay_seed(
 
     fc = SeedFc(cfg, imu_seed, seed_clock, t_ns=SEED_START_NS, on_end=on_end)
     urg = seed_urg(cfg, laser_seed, seed_clock, SEED_START_NS)
-    feeder = Feeder([], clock, link_dir, speed=speed, models={"mk": fc, "laser": urg})
+    feeder = Feeder(
+        [], clock, link_dir, speed=speed, models={"mk": fc, "laser": urg}, memory=speed is None
+    )
     opts = FlightOptions(
         mk_port=feeder.path("mk"),
         laser_port=feeder.path("laser"),

@@ -54,6 +54,9 @@ _event_record = st.builds(
     start_ns=_int64,
 )
 def test_round_trip(records: list[RawRecord], port: str, start_ns: int) -> None:
+    # a port's records are in time order (the tap is called in order, on one clock)
+    times = sorted(r.t_ns for r in records)
+    records = [RawRecord(t, r.kind, r.data) for t, r in zip(times, records, strict=True)]
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "mk.raw"
         with _recorder(path, port, start_ns) as rec:
@@ -68,6 +71,16 @@ def test_round_trip(records: list[RawRecord], port: str, start_ns: int) -> None:
     assert rec.bytes_written == sum(len(r.data) for r in records if r.kind == "w")
     assert got.payload("r") == b"".join(r.data for r in records if r.kind == "r")
     assert (rec.dropped, rec.errors, rec.error) == (0, 0, None)
+
+
+def test_records_out_of_time_order_are_damage_named_by_byte_offset(tmp_path: Path) -> None:
+    path = tmp_path / "mk.raw"
+    with _recorder(path, "/dev/ttyUSB0") as rec:
+        rec("r", 5_000, b"#a")
+        rec("w", 6_000, b"#b")
+        rec("r", 4_000, b"#c")  # back in time: a damaged file, not a recording
+    with pytest.raises(ReplayError, match=r"mk\.raw: byte \d+: record time 4000 ns is before"):
+        read_raw(path)
 
 
 def test_recorder_is_a_tap_and_each_record_is_on_disk_at_once(tmp_path: Path) -> None:
