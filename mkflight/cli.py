@@ -23,11 +23,18 @@ EXIT_RUNTIME = 1
 EXIT_USAGE = 2
 
 
+def _err() -> str:
+    """The journal's error priority prefix for an ``error:`` line, if stderr is the journal."""
+    from mkflight.eventlog import stderr_prefix  # structlog stays off a usage error's path
+
+    return stderr_prefix("error")
+
+
 class _Parser(argparse.ArgumentParser):
     """An ArgumentParser whose usage errors are one ``error:`` line and exit 2."""
 
     def error(self, message: str) -> NoReturn:
-        print(f"error: {message} (see '{self.prog} --help')", file=sys.stderr)
+        print(f"{_err()}error: {message} (see '{self.prog} --help')", file=sys.stderr)
         raise SystemExit(EXIT_USAGE)
 
 
@@ -370,7 +377,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except MkflightError as err:
         return _fail(err, EXIT_RUNTIME, args.debug)
     except KeyboardInterrupt:
-        print("error: interrupted", file=sys.stderr)
+        print(f"{_err()}error: interrupted", file=sys.stderr)
         return EXIT_RUNTIME
     except BrokenPipeError:
         # The reader of our stdout went away (e.g. `| head`): not an error of ours.
@@ -382,7 +389,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.debug:
             traceback.print_exc()
         print(
-            f"error: internal error: {cli_types.printable(repr(err))} "
+            f"{_err()}error: internal error: {cli_types.printable(repr(err))} "
             "(run with --debug for details)",
             file=sys.stderr,
         )
@@ -393,5 +400,5 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _fail(err: BaseException, code: int, debug: bool) -> int:
     if debug:
         traceback.print_exc()
-    print(f"error: {cli_types.printable(str(err))}", file=sys.stderr)  # it may quote a log
+    print(f"{_err()}error: {cli_types.printable(str(err))}", file=sys.stderr)  # may quote a log
     return code

@@ -59,6 +59,15 @@ def on_journal(stream: TextIO, environ: Mapping[str, str] | None = None) -> bool
     return (st.st_dev, st.st_ino) == (int(device), int(inode))
 
 
+def stderr_prefix(level: str) -> str:
+    """``<N>`` for a line of ``level`` printed straight to stderr when it is the journal.
+
+    For what the CLI prints itself (its ``error:`` and ``warning:`` lines), so that
+    ``journalctl -p err`` shows them as the event lines' priorities do; "" elsewhere.
+    """
+    return f"<{SYSLOG_PRIORITY[level]}>" if on_journal(sys.stderr) else ""
+
+
 class _SyslogPrefixed:
     """Wraps a renderer: when the stream is the journal, each line starts with ``<N>``.
 

@@ -74,11 +74,10 @@ from pathlib import Path
 from typing import Final
 
 import msgspec
-import yaml
 
 import mkflight
 from mkflight.analysis.identify import Identification
-from mkflight.config import Config, config_to_dict, load_config
+from mkflight.config import Config, config_to_dict, dump_yaml, load_config
 from mkflight.errors import ConfigError
 
 __all__ = [
@@ -256,9 +255,7 @@ def write_tuned_config(
     base_name = "built-in defaults" if base_path is None else str(base_path)
     if base_overrides:
         base_name += " with --set " + " ".join(base_overrides)
-    text = _header(ident, base_name, overrides, now) + yaml.safe_dump(
-        config_to_dict(tuned), sort_keys=False
-    )
+    text = _header(ident, base_name, overrides, now) + dump_yaml(config_to_dict(tuned))
     _replace_atomically(target, text)
     return tuned, overrides
 

@@ -50,6 +50,7 @@ from mkflight.clock import NS_PER_S, Clock, MonotonicClock
 from mkflight.config import Config
 from mkflight.control.phases import Phase, PhaseRequests
 from mkflight.errors import FlightError, LinkError, PreflightError
+from mkflight.eventlog import exception_text
 from mkflight.flight.flight_logs import FlightLogs
 from mkflight.flight.laser_pipeline import LaserResult
 from mkflight.flight.links import open_laser, open_mk
@@ -541,16 +542,27 @@ class FlightApp:
                     if exc is not None and crash is None:
                         crash = exc
                         self.event(
-                            self.clock.now_ns(), "crash", task=task.get_name(), error=repr(exc)
+                            self.clock.now_ns(),
+                            "crash",
+                            task=task.get_name(),
+                            error=repr(exc),
+                            exception=exception_text(exc),
                         )
-                        log.error("task crashed", task=task.get_name(), error=repr(exc))
+                        log.error("task crashed", task=task.get_name(), exc_info=exc)
                         self.request_stop(StopRequest.CRASH, f"{task.get_name()} task: {exc}")
             exc = mk.exception()
             if isinstance(exc, StopDeadlineError):
                 self.event(self.clock.now_ns(), "stop_deadline", error=str(exc))
                 return exc
             if exc is not None:
-                self.event(self.clock.now_ns(), "crash", task="mk-step", error=repr(exc))
+                self.event(
+                    self.clock.now_ns(),
+                    "crash",
+                    task="mk-step",
+                    error=repr(exc),
+                    exception=exception_text(exc),
+                )
+                log.error("task crashed", task="mk-step", exc_info=exc)
                 return exc
             return crash
         finally:

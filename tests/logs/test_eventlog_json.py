@@ -162,3 +162,29 @@ def test_an_exception_in_the_events_log_reads_back(tmp_path: Path) -> None:
     assert crash.fields["error"] == repr(exc)
     assert crash.fields["exception"].splitlines()[-1] == "RuntimeError: cannot parse the gas stick"
     assert "in _boom" in crash.fields["exception"]
+
+
+@pytest.mark.parametrize("journal", [True, False])
+def test_the_cli_error_line_carries_the_error_priority_on_the_journal(
+    journal: bool, tmp_path: Path
+) -> None:
+    """``error:`` lines are printed by the CLI itself, not structlog: ``<3>`` on the journal."""
+    read_fd, write_fd = os.pipe()
+    env = {k: v for k, v in os.environ.items() if k != "JOURNAL_STREAM"}
+    if journal:
+        st = os.fstat(write_fd)
+        env["JOURNAL_STREAM"] = f"{st.st_dev}:{st.st_ino}"
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "mkflight", "replay", str(tmp_path / "nothing")],
+            stderr=write_fd,
+            stdout=subprocess.DEVNULL,
+            stdin=subprocess.DEVNULL,
+            env=env,
+        )
+    finally:
+        os.close(write_fd)
+    with os.fdopen(read_fd, encoding="utf-8") as err:
+        lines = err.read().splitlines()
+    assert proc.wait(timeout=60) == 1
+    assert lines[-1].startswith("<3>error: " if journal else "error: "), lines
