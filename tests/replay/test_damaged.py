@@ -302,3 +302,42 @@ def test_random_damage_never_hangs_and_never_crashes(
     out = folder.with_name(folder.name + "-out")
     _judge(_run("-m", "mkflight", "replay", str(folder), "--fast", "--out", str(out)), folder)
     _judge(_run("-m", "mkflight", "analyze", "precision", str(folder)), folder)
+
+
+# --------------------------------------------------------------------------- scanmatch
+
+CLF = Path(__file__).resolve().parents[1] / "data" / "laser" / "synth_roomA_hover_100.clf.gz"
+
+
+def _clf_cases() -> dict[str, Callable[[bytes, bytes], bytes]]:
+    """name -> (the .gz bytes, the text bytes) -> the damaged file's bytes."""
+    return {
+        "log.clf:cut mid-line": lambda gz, text: text[: len(text) * 2 // 3],
+        "log.clf:garbage appended": lambda gz, text: text + _GARBAGE,
+        "log.clf:zero-filled": lambda gz, text: bytes(len(text)),
+        "log.clf:huge and NaN ranges": lambda gz, text: (
+            text.replace(b" 1.", b" 1e308 ", 40)
+            .replace(b" 2.", b" nan ", 40)
+            .replace(b" 3.", b" -inf ", 40)
+        ),
+        "log.clf.gz:cut": lambda gz, text: gz[: len(gz) // 2],
+        "log.clf.gz:garbage appended": lambda gz, text: gz + _GARBAGE,
+    }
+
+
+@pytest.mark.parametrize("case", list(_clf_cases()))
+def test_scanmatch_on_a_damaged_log_ends_with_the_scans_it_could_read_or_an_error(
+    case: str, tmp_path: Path
+) -> None:
+    import gzip
+
+    name, _ = case.split(":")
+    gz = CLF.read_bytes()
+    log = tmp_path / name
+    log.write_bytes(_clf_cases()[case](gz, gzip.decompress(gz)))
+    proc = _run("-m", "mkflight", "scanmatch", str(log), "-o", str(tmp_path / "traj.txt"))
+    _judge(proc, tmp_path)
+    if proc.returncode == 0:
+        rows = (tmp_path / "traj.txt").read_text(encoding="utf-8").splitlines()
+        assert rows, "a trajectory row per scan that could be read"
+        assert all(len(r.split()) == 4 for r in rows if not r.startswith("#"))
