@@ -8,9 +8,12 @@ Each variant replays it ``--replay-runs`` times through ``mkflight replay`` in-p
 the speed-up (recorded seconds per wall second), CPU per recorded second and per step,
 and whether the determinism check passed:
 
-* ``fast``: lock-step, as fast as the daemon takes it, the recorded scan poses;
-* ``fast, rematch`` (the baseline of the same run): the same, with the scan matcher run
-  again on every replayed scan (what a ``--set scanmatch.*`` replay costs).
+* ``fast``: lock-step, as fast as the daemon takes it, the recorded scan poses, the
+  recorded bytes straight into the daemon's streams (memory ports, ``--fast``);
+* ``fast, ptys`` (the baseline of the same run): the same through two pseudo-terminals
+  and the real serial stack (``--ptys``: how ``--fast`` played before memory ports);
+* ``fast, rematch``: memory ports with the scan matcher run again on every replayed scan
+  (what a ``--set scanmatch.*`` replay costs).
 """
 
 from __future__ import annotations
@@ -42,9 +45,9 @@ def record(duration_s: float) -> Path:
     return folder
 
 
-def _one(source: Path, rematch: bool) -> dict[str, Any]:
+def _one(source: Path, rematch: bool, ptys: bool) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
-        r = replay_flight(source, Path(tmp) / "r", rematch=rematch)
+        r = replay_flight(source, Path(tmp) / "r", rematch=rematch, ptys=ptys)
     return {
         "wall_s": r.wall_s,
         "cpu_s": r.cpu_s,
@@ -57,11 +60,15 @@ def _one(source: Path, rematch: bool) -> dict[str, Any]:
 def run(source: Path | None, duration_s: float, runs: int) -> dict[str, Any]:
     """Replay ``source`` (or a new flight) ``runs`` times per variant, alternating."""
     folder = source if source is not None else record(duration_s)
-    variants = {"fast": False, "fast, rematch (baseline)": True}
+    variants = {
+        "fast": (False, False),
+        "fast, ptys (baseline)": (False, True),
+        "fast, rematch": (True, False),
+    }
     samples: dict[str, list[dict[str, Any]]] = {name: [] for name in variants}
-    for _ in range(runs):  # A B A B: drift hits both alike
-        for name, rematch in variants.items():
-            samples[name].append(_one(folder, rematch))
+    for _ in range(runs):  # A B C A B C: drift hits all alike
+        for name, (rematch, ptys) in variants.items():
+            samples[name].append(_one(folder, rematch, ptys))
     out: dict[str, Any] = {"source": str(folder)}
     for name, rs in samples.items():
         wall = statistics.median(r["wall_s"] for r in rs)
@@ -76,6 +83,6 @@ def run(source: Path | None, duration_s: float, runs: int) -> dict[str, Any]:
             "runs": len(rs),
             "deterministic": all(r["deterministic"] for r in rs),
         }
-    base = out["fast, rematch (baseline)"]["wall_s_median"]
+    base = out["fast, ptys (baseline)"]["wall_s_median"]
     out["ratio_fast_over_baseline"] = out["fast"]["wall_s_median"] / base
     return out
