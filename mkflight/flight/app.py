@@ -49,7 +49,7 @@ import structlog
 from mkflight.clock import NS_PER_S, Clock, MonotonicClock
 from mkflight.config import Config
 from mkflight.control.phases import Phase, PhaseRequests
-from mkflight.errors import FlightError, LinkError, PreflightError
+from mkflight.errors import FlightError, LinkError, MkflightError, PreflightError
 from mkflight.eventlog import exception_text
 from mkflight.flight.flight_logs import FlightLogs
 from mkflight.flight.laser_pipeline import LaserResult
@@ -541,21 +541,30 @@ class FlightApp:
                         return exc
                     if exc is not None and crash is None:
                         crash = exc
+                        bug = not isinstance(exc, MkflightError)  # its stack is wanted
                         self.event(
                             self.clock.now_ns(),
                             "crash",
                             task=task.get_name(),
                             error=repr(exc),
-                            exception=exception_text(exc),
+                            **({"exception": exception_text(exc)} if bug else {}),
                         )
-                        log.error("task crashed", task=task.get_name(), exc_info=exc)
+                        log.error(
+                            "task crashed",
+                            task=task.get_name(),
+                            error=repr(exc),
+                            exc_info=exc if bug else None,
+                        )
                         self.request_stop(StopRequest.CRASH, f"{task.get_name()} task: {exc}")
             exc = mk.exception()
             if isinstance(exc, StopDeadlineError):
                 self.event(self.clock.now_ns(), "stop_deadline", error=str(exc))
                 return exc
             if exc is not None:
-                self.event(
+                if isinstance(exc, MkflightError):  # a failure named to the operator
+                    self.event(self.clock.now_ns(), "crash", task="mk-step", error=repr(exc))
+                    return exc
+                self.event(  # a bug: its stack for whoever reads the logs
                     self.clock.now_ns(),
                     "crash",
                     task="mk-step",

@@ -53,7 +53,7 @@ def _run(*args: str) -> subprocess.CompletedProcess[str]:
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A 12 s hover flown on real ptys against ``mkflight sim`` (as on hardware)."""
+    """A 10 s hover flown on real ptys against ``mkflight sim`` (as on hardware)."""
     base = tmp_path_factory.mktemp("damaged")
     folder = base / "flight"
     sim = subprocess.Popen(
@@ -70,7 +70,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
             [
                 *(PY, "-m", "mkflight", "fly", "--hover", "--log-dir", str(folder)),
                 *("--mk-port", paths["mk"].strip(), "--laser-port", paths["laser"].strip()),
-                *("--duration", "12"),
+                *("--duration", "10"),
             ],
             capture_output=True,
             text=True,
@@ -234,8 +234,8 @@ def test_a_damaged_folder_replays_its_intact_part_or_names_the_damage(
         assert any(says in w for w in _lines(proc, "warning:")), proc.stderr[-3000:]
         # the intact part is reproduced exactly: the check passes up to the cut
         assert proc.returncode == 0, proc.stderr[-3000:]
-    analyze = _run("-m", "mkflight", "analyze", "precision", str(folder))
-    _judge(analyze, folder)
+    if not case.startswith(("mk.raw", "laser.raw")):  # analyze reads the tables and events
+        _judge(_run("-m", "mkflight", "analyze", "precision", str(folder)), folder)
 
 
 def test_the_issue_case_truncated_mk_raw_ends_naming_mk_raw(recorded: Path, tmp_path: Path) -> None:
