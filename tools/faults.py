@@ -34,6 +34,14 @@ def _short(message: str, limit: int = 90) -> str:
     return message if len(message) <= limit else message[: limit - 1] + "…"
 
 
+def _verdict(row: dict[str, Any]) -> str:
+    """ok, or FAILED and why (and the daemon defect it is known for, if any)."""
+    if row["ok"]:
+        return "ok"
+    known = f" (known daemon issue: {row['known_issue']})" if row.get("known_issue") else ""
+    return "FAILED: " + "; ".join(row["problems"]) + known
+
+
 def table(rows: list[dict[str, Any]]) -> str:
     """The markdown table of the verdicts, in campaign order."""
     lines = [
@@ -61,7 +69,7 @@ def table(rows: list[dict[str, Any]]) -> str:
                     _short(r["message"]) or "-",
                     cmds,
                     r["logs"],
-                    "ok" if r["ok"] else "FAILED: " + "; ".join(r["problems"]),
+                    _verdict(r),
                 )
             )
             + " |"

@@ -53,6 +53,9 @@ class Scenario:
     # --- how the outcome differs from a plain hover
     hover_like: bool = False  # absorbed: ends by --duration on time, no failsafe before
     react_s: float = 2.0  # else: the hold ends (failsafe, stop, crash, logs) this soon
+    # a daemon defect this row exposes, not yet fixed: the row is judged as strictly, its
+    # failure shown in the table and as an expected failure (xfail) in pytest
+    known_issue: str | None = None
 
     @property
     def needs_namespace(self) -> bool:
@@ -78,7 +81,10 @@ FC_FLOOD_BYTES: Final = 40 * 180
 LASER_FLOOD_BYTES: Final = 20 * 1152
 
 DURATION_END: Final = r"^--duration \d+ s$"
-FC_VANISHED: Final = r"^FlightCtrl lost: \S+: device vanished or failed \(EIO"
+# the port gone: the reader (EIO) or a command's write sees it first
+FC_VANISHED: Final = (
+    r"^FlightCtrl lost: \S+: (device vanished or failed \(EIO|write failed, port closed)"
+)
 # no DebugOut for mk_release_s: the link handed control back; the MK task says so when it
 # times out ("FlightCtrl lost: no DebugOut ..."), the step when a late DebugOut still came
 FC_SILENT: Final = (
@@ -121,7 +127,7 @@ SCENARIOS: Final[tuple[Scenario, ...]] = (
         "FC adapter pulled, back after 1 s",
         1,
         FC_VANISHED,
-        ("released",),
+        ("released", "landed"),  # as fc-unplug: it may sink while no frame can go
         sim_faults=(f"fc-vanish@{FAULT_AT_S}", f"fc-replug@{FAULT_AT_S + 1}"),
         crash_task="mk-step",
     ),
@@ -194,7 +200,6 @@ SCENARIOS: Final[tuple[Scenario, ...]] = (
         sim_faults=FC_SATURATE,
         crash_task="mk-step",
         counters=(("mk_link", "garbage_bytes", 5000),),
-        step_gap_s=1.0,
         react_s=3.0 + FC_LOSS_S,
     ),
     # --- the laser
@@ -304,6 +309,11 @@ SCENARIOS: Final[tuple[Scenario, ...]] = (
         send=((FAULT_AT_S, signal.SIGSTOP), (FAULT_AT_S + 1.5, signal.SIGCONT)),
         crash_task="mk-step",
         step_gap_s=1.4,
+        known_issue=(
+            "on waking, the DebugOut queued during the freeze is stamped with its read time,"
+            " so the link's 1 s stale-release sometimes loses the race to it: the daemon"
+            " then flies on (a laser_stale landing, exit 0) after 1.5 s without commands"
+        ),
     ),
     # --- the disk
     Scenario(

@@ -55,6 +55,9 @@ def test_fault(name: str, flights: dict[str, Flight]) -> None:
         pytest.skip(flight.skipped)
     verdict = judge(flight)
     report_row(verdict)
+    known = flight.scenario.known_issue
+    if verdict.problems and known is not None:
+        pytest.xfail(f"known daemon issue: {known}: {verdict.problems}")
     tail = "\n".join(flight.stderr.splitlines()[-8:])
     assert not verdict.problems, f"{verdict.problems}\nstderr tail:\n{tail}"
 
