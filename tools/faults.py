@@ -34,6 +34,13 @@ def _short(message: str, limit: int = 90) -> str:
     return message if len(message) <= limit else message[: limit - 1] + "…"
 
 
+def _touchdowns(row: dict[str, Any]) -> str:
+    """Our landing's touchdowns; "drop" before those that came before it (out of our hands)."""
+    drops = [f"drop {v:.2f}" for v in row.get("drops_mps", [])]
+    ours = [f"{v:.2f}" for v in row.get("touchdowns_mps", [])]
+    return ", ".join(drops + ours) or "-"
+
+
 def _verdict(row: dict[str, Any]) -> str:
     """ok, or FAILED and why (and the daemon defect it is known for, if any)."""
     if row["ok"]:
@@ -63,7 +70,7 @@ def table(rows: list[dict[str, Any]]) -> str:
                     r.get("fired") or "-",
                     r.get("record") or "-",
                     r["end"],
-                    ", ".join(f"{v:.2f}" for v in r.get("touchdowns_mps", [])) or "-",
+                    _touchdowns(r),
                     r["released_by"] or "-",
                     r["code"],
                     _short(r["message"]) or "-",

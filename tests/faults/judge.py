@@ -85,7 +85,8 @@ class Verdict:
     released_by: str
     logs: str
     problems: list[str]
-    touchdowns_mps: list[float] = field(default_factory=list)
+    touchdowns_mps: list[float] = field(default_factory=list)  # in our landing
+    drops_mps: list[float] = field(default_factory=list)  # touchdowns before it (none: never)
     fired: str = ""  # when the fault fired, after the hold began
     record: str = ""  # the daemon's first reaction after the fault
 
@@ -484,7 +485,8 @@ def judge(flight: Flight) -> Verdict:
         released_by=by,
         logs=logs,
         problems=problems,
-        touchdowns_mps=[round(v, 2) for _, v in touchdowns],
+        touchdowns_mps=[round(v, 2) for t, v in touchdowns if land_s is not None and t >= land_s],
+        drops_mps=[round(v, 2) for t, v in touchdowns if land_s is None or t < land_s],
         fired=fired,
         record=record,
         known_issue=sc.known_issue,

@@ -10,6 +10,7 @@ config and in a recorded flight to replay) are judged here too.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import shutil
@@ -36,6 +37,8 @@ def _selected(session: pytest.Session) -> set[str]:
             names.add(str(callspec.params["name"]))
         if item.name.startswith("test_bad_values_in_a_recorded_flight"):
             names.add("baseline")
+        if item.name.startswith("test_a_plain_hover_passes_no_fault_row"):
+            names.update(("baseline", "sigterm"))
     return names
 
 
@@ -60,6 +63,22 @@ def test_fault(name: str, flights: dict[str, Flight]) -> None:
         pytest.xfail(f"known daemon issue: {known}: {verdict.problems}")
     tail = "\n".join(flight.stderr.splitlines()[-8:])
     assert not verdict.problems, f"{verdict.problems}\nstderr tail:\n{tail}"
+
+
+@pytest.mark.parametrize("hover", ["baseline", "sigterm"])
+def test_a_plain_hover_passes_no_fault_row(hover: str, flights: dict[str, Flight]) -> None:
+    """Issue 18: a row must prove its fault. A plain hover, ended by ``--duration`` or by
+    SIGTERM, judged as any other scenario's flight fails that row (its fault never fired,
+    the daemon recorded nothing of it, or the outcome is a hover's)."""
+    flight = flights[hover]
+    if flight.skipped is not None:
+        pytest.skip(flight.skipped)
+    passed = [
+        sc.name
+        for sc in SCENARIOS
+        if sc.name != hover and not judge(dataclasses.replace(flight, scenario=sc)).problems
+    ]
+    assert passed == [], f"rows a plain {hover} flight passes: {passed}"
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
