@@ -84,7 +84,12 @@ def cmd_analyze_precision(*, log_dir: str, truth: str | None, as_json: bool) -> 
             raise AnalysisInputError(msg)
         samples = with_truth(samples, parse_truth(_read_text(truth_path), str(truth_path)))
         source = "truth"
-    p = precision(samples, source)
+    try:
+        p = precision(samples, source)
+    except AnalysisInputError as err:  # say which file had nothing to measure
+        cut = " (its last line was cut short)" if events.truncated else ""
+        msg = f"{folder / EVENTS_FILE}{cut}: {err}"
+        raise AnalysisInputError(msg) from err
     if as_json:
         print(json.dumps(p.as_dict()))
         return 0

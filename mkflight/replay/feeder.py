@@ -143,7 +143,8 @@ class Feeder:
         #: the daemon closed the port for good (its way out)
         self.closed: dict[str, Callable[[], bool]] = {p: (lambda: False) for p in PORTS}
         self._lost: set[str] = set()
-        self._daemon_lost: set[str] = set()
+        #: losses the daemon declared by itself that no recorded 'c' has matched yet
+        self._own_losses: dict[str, int] = dict.fromkeys(PORTS, 0)
         self._wait_started: float | None = None
         self._pace0: tuple[int, float] | None = None
         self._seen_open: set[str] = set()
@@ -220,12 +221,13 @@ class Feeder:
         """The daemon (re)opened ``port``."""
         self.daemon_open[port] = True
         self._lost.discard(port)
-        self._daemon_lost.discard(port)
 
     def on_lost(self, port: str) -> None:
-        """The daemon gave ``port`` up by itself (a protocol failure it will re-open after)."""
+        """The daemon marked ``port`` lost: by itself (a protocol failure it re-opens
+        after), or because the device we pulled is gone."""
         self.daemon_open[port] = False
-        self._daemon_lost.add(port)
+        if port not in self._lost:
+            self._own_losses[port] += 1
 
     def _usable(self, port: str) -> bool:
         return self.daemon_open[port] and port not in self._lost and not self.closed[port]()
@@ -378,7 +380,11 @@ class Feeder:
                 before = dev.dropped_bytes
                 dev.write(inp.data)
                 self.stats.delivered_bytes[inp.port] += len(inp.data) - (dev.dropped_bytes - before)
-        elif inp.kind == "c" and inp.port not in self._daemon_lost:
+        elif inp.kind == "c" and self._own_losses[inp.port] > 0:
+            # The original's own mark, which the replayed daemon has made already (it may
+            # have re-opened the port since, as fast as the original did a little later).
+            self._own_losses[inp.port] -= 1
+        elif inp.kind == "c":
             # The original lost the port here; the replayed daemon has not (so it was the
             # device that went, not a failure the same bytes reproduce): pull the plug.
             dev.vanish()
