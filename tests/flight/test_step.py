@@ -86,7 +86,9 @@ def test_every_command_is_within_limits_whatever_the_inputs(
             acc_y_mps2=ay, acc_z_mps2=az, battery_v=volts,
         )  # fmt: skip
         out = core.imu_step(imu, PhaseRequests(takeoff=True, handshake_ok=True))
-        assert command_within_limits(out.command, CFG.control), out.command
+        assert command_within_limits(
+            out.command, CFG.control, counts_per_rad=CFG.mk.counts_per_rad
+        ), out.command
         assert 0 <= out.command.gas_counts <= CFG.control.gas_max
         assert math.isfinite(out.estimate.x_m)
 
