@@ -223,8 +223,10 @@ class Feeder:
         self._lost.discard(port)
 
     def on_lost(self, port: str) -> None:
-        """The daemon marked ``port`` lost: by itself (a protocol failure it re-opens
-        after), or because the device we pulled is gone."""
+        """The daemon marked ``port`` lost, by itself or because we pulled the device.
+
+        By itself: a protocol failure, after which it re-opens the port.
+        """
         self.daemon_open[port] = False
         if port not in self._lost:
             self._own_losses[port] += 1

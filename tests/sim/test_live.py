@@ -4,16 +4,18 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import os
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
+import structlog
 import structlog.testing
 
 from mkflight.config import Config, SimConfig, SimVehicleConfig
@@ -167,6 +169,17 @@ async def test_a_laser_stall_fires_on_time_and_stops_the_scans() -> None:
             await driver.close()
 
 
+@pytest.fixture
+def info_events() -> Iterator[None]:
+    """Events at info level whatever an earlier in-process CLI run configured (its default
+    level, warning, filters info before capture_logs sees it); the setup is put back."""
+    saved = structlog.get_config()
+    structlog.configure(wrapper_class=structlog.make_filtering_bound_logger(logging.DEBUG))
+    yield
+    structlog.configure(**saved)
+
+
+@pytest.mark.usefixtures("info_events")
 async def test_each_fired_fault_is_logged_with_its_time_on_both_clocks() -> None:
     """The ``sim fault`` line says what fired, when on the fault clock (counted from the
     fault clock's start, here an event as ``--faults-on-sigusr1`` sets it) and when on the
