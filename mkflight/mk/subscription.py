@@ -112,7 +112,21 @@ class DebugSubscription:
         self._latest = None
 
     def on_debug(self, debug: DebugOut, t_ns: int) -> None:
-        """A DebugOut arrived at ``t_ns``: make it the newest sample, wake the consumer."""
+        """A DebugOut arrived at ``t_ns``: make it the newest sample, wake the consumer.
+
+        One that comes ``release_after_stale_s`` or more after the one before, with control
+        taken, is not taken: the stale-data release was due before it was read (the
+        process was frozen, SIGSTOP or a stalled host, so the release timer could not
+        fire). The consumer is woken to release as the timer would have; the samples after
+        the release are taken again.
+        """
+        last = self._last_sample_ns
+        gap_ns = int(self._settings.release_after_stale_s * NS_PER_S)
+        if last is not None and self._tx.engaged and t_ns - last >= gap_ns:
+            self._stats.samples_dropped += 1
+            log.warning("mk_data_gap", port=self._port, gap_s=(t_ns - last) / NS_PER_S)
+            self.wake()
+            return
         self._last_sample_ns = t_ns
         self._stats.samples += 1
         if self._latest is not None:

@@ -309,11 +309,6 @@ SCENARIOS: Final[tuple[Scenario, ...]] = (
         send=((FAULT_AT_S, signal.SIGSTOP), (FAULT_AT_S + 1.5, signal.SIGCONT)),
         crash_task="mk-step",
         step_gap_s=1.4,
-        known_issue=(
-            "on waking, the DebugOut queued during the freeze is stamped with its read time,"
-            " so the link's 1 s stale-release sometimes loses the race to it: the daemon"
-            " then flies on (a laser_stale landing, exit 0) after 1.5 s without commands"
-        ),
     ),
     # --- the disk
     Scenario(

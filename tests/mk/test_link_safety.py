@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import time
 
 import pytest
 
@@ -285,3 +286,22 @@ async def test_lost_confirms_are_counted_without_later_confirms() -> None:
 
 def test_mk08_fixture_is_the_worked_example() -> None:
     assert MK08.analog[11] == 271
+
+
+async def test_a_debugout_read_after_a_freeze_longer_than_the_release_time_releases() -> None:
+    """SIGSTOP past the release time: on waking, the DebugOut queued meanwhile is read
+    before the release timer can fire. It must not count as fresh data: the link releases
+    as the timer would have (the fault campaign's process-pause row)."""
+    link, fc, task = await _streaming_link(STALE_SETTINGS)
+    link.send_extern_control(ExternControl(nick=30, gas=110, config=1))
+    await _until(lambda: fc.count("b") >= 1, fc)
+    fc.answer = False
+    fc.device.write(MK08.encode())  # queued for the link's reader, which cannot run:
+    time.sleep(STALE_SETTINGS.release_after_stale_s * 2)  # noqa: ASYNC251 - the fault: a frozen loop
+    with pytest.raises(LinkError, match="no DebugOut"):
+        await link.next_sample(timeout_s=1.0)
+    assert link.stats.stale_releases == 1
+    assert sum(is_release(f) for f in fc.frames) == STALE_SETTINGS.release_frames
+    assert link.control_blocked is not None
+    await link.close()
+    task.cancel()
