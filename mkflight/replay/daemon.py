@@ -35,6 +35,7 @@ from mkflight.flight.matcher_worker import MatcherWorker
 from mkflight.flight.sdnotify import Notifier
 from mkflight.flight.step import ImuStepOutput
 from mkflight.io.stream import ByteStream
+from mkflight.logs import table3, table4
 from mkflight.msgs import ImuSample, Pose2D, Scan
 from mkflight.replay.feeder import Feeder
 from mkflight.replay.inputs import RecordedScan
@@ -200,7 +201,10 @@ class ReplayApp(FlightApp):
             and self.clock.now_ns() <= self._intact_end_ns
             and self.logs is not None
         ):
-            for name, writer in (("imu_50ms.log", self.logs.t4), ("laser_100ms.log", self.logs.t3)):
+            for name, writer in (
+                (table4.FILE_NAME, self.logs.t4),
+                (table3.FILE_NAME, self.logs.t3),
+            ):
                 if writer.last_index is not None:
                     self.rows_at_intact_end[name] = writer.last_index
         return out

@@ -165,7 +165,8 @@ class _EventInputs:
     stops: list[Input] = field(default_factory=list)  # before READY: by time
     step_stops: list[tuple[int, StopRequest, str]] = field(default_factory=list)
     ready_ns: int | None = None
-    #: the events file was cut short: its last whole event's time
+    #: the events file was cut short: the time up to which its records are whole (its
+    #: last event's time less EARLY_END_NS: a scan's result is logged when applied)
     cut_ns: int | None = None
 
 
@@ -307,7 +308,7 @@ def read_recorded_flight(folder: str | Path) -> RecordedFlight:
     intact_end_ns = _intact_end(recordings, warnings)
     ev = _events(folder, warnings)
     if ev.cut_ns is not None:
-        intact_end_ns = min(ev.cut_ns, intact_end_ns or ev.cut_ns)
+        intact_end_ns = ev.cut_ns if intact_end_ns is None else min(ev.cut_ns, intact_end_ns)
     merged = [i for port in PORTS for i in _port_inputs(port, recordings[port])] + ev.stops
     merged.sort(key=lambda i: i.t_ns)  # stable: one port's records keep their order
     starts = [r.header.start_t_ns for r in recordings.values()]

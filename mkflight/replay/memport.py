@@ -76,7 +76,6 @@ class MemoryDevice:
         self._plugged = True
         self.stream: MemoryPortStream | None = None
         self.dropped_bytes = 0  # a pty drops what its buffer will not take; never here
-        self.written_by_daemon = 0
 
     @property
     def is_open(self) -> bool:
@@ -113,7 +112,6 @@ class MemoryDevice:
 
     def from_daemon(self, data: bytes) -> None:
         """What the daemon wrote: to the sink (an emulated device), else dropped."""
-        self.written_by_daemon += len(data)
         if self._sink is not None:
             self._sink(data)
 
