@@ -52,7 +52,8 @@ class Phase(enum.Enum):
     RELEASED = "released"
 
 
-_FLYING = (Phase.TAKEOFF, Phase.HOLD, Phase.LAND)
+FLYING_PHASES = (Phase.TAKEOFF, Phase.HOLD, Phase.LAND)
+"""The phases in the air: the controllers run and a set-point exists."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -232,7 +233,7 @@ def phase_step(
             go(Phase.TAKEOFF, "handshake confirmed")
 
     frozen = fs in (FailsafeAction.HOLD, FailsafeAction.LEVEL_HOLD)
-    if phase in _FLYING and sp is not None:
+    if phase in FLYING_PHASES and sp is not None:
         if phase is Phase.TAKEOFF:
             rate = 0.0 if frozen else p.climb_mps
             h = _step_toward(sp.height_m, p.takeoff_height_m, rate * dt_s)
@@ -254,7 +255,7 @@ def phase_step(
     elif phase is Phase.LANDED and (t_ns - start) * 1e-9 >= p.landed_idle_s:
         go(Phase.RELEASED, "landed idle elapsed")
 
-    flying = phase in _FLYING
+    flying = phase in FLYING_PHASES
     new_state = PhaseState(phase, t_ns, start, sp, land_since)
     return PhaseOutput(
         state=new_state,
