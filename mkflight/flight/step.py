@@ -67,6 +67,7 @@ from mkflight.flight.step_rules import (
     hold_setpoint,
     laser_age_s,
     select_command,
+    table3_row,
     table4_row,
     takeoff_gate,
 )
@@ -269,18 +270,7 @@ class FlightCore:
         if ls is None or not used:
             return None  # no new pose: no new TABLE III row
         self._index3 += 1
-        return Table3Row(
-            ls.w_vel_x_mps,
-            ls.b_vel_x_mps,
-            ls.b_esti_vel_x_mps,
-            ls.w_vel_y_mps,
-            ls.b_vel_y_mps,
-            ls.b_esti_vel_y_mps,
-            ls.x_m,
-            ls.y_m,
-            ls.yaw_rad,
-            self._index3,
-        )
+        return table3_row(ls, self._index3)
 
     def _since_s(self, t_ns: int) -> str:
         """``t+12.35s``: seconds since the first step, for the failsafe lines.

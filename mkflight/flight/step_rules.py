@@ -10,7 +10,8 @@ the step applies can be read and tested on its own:
 * :func:`select_command`: which command the step sends (the failsafe's release, idle,
   the descent without the hat, the controller's, or the last safe one);
 * :func:`table4_row`: the TABLE IV row of the 2011 QUT CyPhy MikroKopter documentation
-  (attitude, accelerations, command and the pilot's sticks).
+  (attitude, accelerations, command and the pilot's sticks); :func:`table3_row` is
+  :meth:`FlightCore.laser_step`'s TABLE III row (velocities and pose).
 
 :class:`~mkflight.flight.step.FlightCore` keeps the state (estimator, failsafe, phases,
 controller, airframe) and moves values between these rules.
@@ -25,12 +26,14 @@ from dataclasses import dataclass, replace
 from mkflight.clock import NS_PER_S
 from mkflight.control.controller import ControlOutput, Setpoint
 from mkflight.control.phases import FLYING_PHASES, Phase, PhaseOutput, PhaseRequests
+from mkflight.estimation.records import LaserStep
+from mkflight.logs.table3 import Table3Row
 from mkflight.logs.table4 import Table4Row
 from mkflight.msgs import Command, Estimate, ImuSample
 from mkflight.safety.failsafe import FailsafeAction, FailsafeInputs, StopRequest
 
 TOUCHDOWN_HEIGHT_M = 0.15
-"""Below this height in LAND a degenerate scan no longer raises the failsafe."""
+"""Below this height in LAND a degenerate scan does not raise the failsafe (touchdown)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -263,5 +266,21 @@ def table4_row(imu: ImuSample, command: Command, sticks: PilotSticks, index: int
         sticks.roll_counts,
         sticks.yaw_counts,
         sticks.thrust_counts,
+        index,
+    )
+
+
+def table3_row(ls: LaserStep, index: int) -> Table3Row:
+    """TABLE III's row of one laser step: velocities in W and B, and the pose."""
+    return Table3Row(
+        ls.w_vel_x_mps,
+        ls.b_vel_x_mps,
+        ls.b_esti_vel_x_mps,
+        ls.w_vel_y_mps,
+        ls.b_vel_y_mps,
+        ls.b_esti_vel_y_mps,
+        ls.x_m,
+        ls.y_m,
+        ls.yaw_rad,
         index,
     )

@@ -11,6 +11,7 @@ from mkflight.config import Config
 from mkflight.control.controller import ControlMode, ControlOutput, Setpoint
 from mkflight.control.limits import command_within_limits
 from mkflight.control.phases import Phase, PhaseOutput, PhaseRequests, PhaseState
+from mkflight.estimation.records import LaserStep
 from mkflight.flight.step import FlightCore
 from mkflight.flight.step_rules import (
     TOUCHDOWN_HEIGHT_M,
@@ -21,6 +22,7 @@ from mkflight.flight.step_rules import (
     hold_setpoint,
     laser_age_s,
     select_command,
+    table3_row,
     table4_row,
     takeoff_gate,
 )
@@ -260,6 +262,18 @@ def test_table4_row_is_attitude_accelerations_command_sticks_index() -> None:
         row.stick_thrust_counts,
     ) == (4, 5, 6, 7)
     assert row.index == 42
+
+
+def test_table3_row_is_velocities_per_axis_then_pose_and_index() -> None:
+    ls = LaserStep(
+        t_ns=T_NS, w_vel_x_mps=1.0, w_vel_y_mps=2.0, b_vel_x_mps=3.0, b_vel_y_mps=4.0,
+        b_esti_vel_x_mps=5.0, b_esti_vel_y_mps=6.0, x_m=7.0, y_m=8.0, yaw_rad=9.0,
+        compensated=True,
+    )  # fmt: skip
+    row = table3_row(ls, 11)
+    assert (row.w_vel_x_mps, row.b_vel_x_mps, row.b_esti_vel_x_mps) == (1.0, 3.0, 5.0)
+    assert (row.w_vel_y_mps, row.b_vel_y_mps, row.b_esti_vel_y_mps) == (2.0, 4.0, 6.0)
+    assert (row.x_m, row.y_m, row.theta_rad, row.index) == (7.0, 8.0, 9.0, 11)
 
 
 # ----------------------------------------------------------------- composed in FlightCore
