@@ -31,10 +31,10 @@ import math
 from dataclasses import dataclass, field
 
 from mkflight.config import ControlConfig, MkConfig
-from mkflight.control.altitude import AltitudeState, altitude_step
+from mkflight.control.altitude import AltitudeResult, AltitudeState, altitude_step
 from mkflight.control.pid import PidState
-from mkflight.control.position import PositionState, position_step
-from mkflight.control.yaw import yaw_step
+from mkflight.control.position import PositionResult, PositionState, position_step
+from mkflight.control.yaw import YawResult, yaw_step
 from mkflight.msgs import Command, Estimate
 
 
@@ -156,34 +156,13 @@ class Controller:
             A valid output with a within-limits :class:`Command` stamped ``est.t_ns``, or
             ``valid=False`` with ``command=None`` and the names of the bad inputs.
         """
-        pitch_rad, roll_rad = attitude
-        needed = {
-            "est.yaw_rad": est.yaw_rad,
-            "est.height_m": est.height_m,
-            "est.vz_up_mps": est.vz_up_mps,
-            "setpoint.yaw_rad": setpoint.yaw_rad,
-            "setpoint.height_m": setpoint.height_m,
-            "setpoint.climb_ff_mps": setpoint.climb_ff_mps,
-            "pitch_rad": pitch_rad,
-            "roll_rad": roll_rad,
-        }
-        if mode is ControlMode.POSITION:
-            needed |= {
-                "est.x_m": est.x_m,
-                "est.y_m": est.y_m,
-                "est.vx_mps": est.vx_mps,
-                "est.vy_mps": est.vy_mps,
-                "setpoint.x_m": setpoint.x_m,
-                "setpoint.y_m": setpoint.y_m,
-            }
-        bad = [name for name, v in needed.items() if not math.isfinite(v)]
-        if not (math.isfinite(battery_v) and battery_v > 0.0):
-            bad.append("battery_v")
+        bad = _invalid_inputs(est, setpoint, attitude, battery_v, mode)
         if bad:
-            return _invalid(tuple(bad))
-
+            return _invalid(bad)
+        pitch_rad, roll_rad = attitude
         st = self.state
         c, mk = self.control, self.mk
+        pos = None
         if mode is ControlMode.POSITION:
             pos = position_step(
                 c,
@@ -200,8 +179,6 @@ class Controller:
                 ff_ax_w_mps2=-c.disturbance_ff * est.ax_ext_mps2,
                 ff_ay_w_mps2=-c.disturbance_ff * est.ay_ext_mps2,
             )
-        else:
-            pos = None
         yaw = yaw_step(c, mk, st.yaw, yaw_sp_rad=setpoint.yaw_rad, yaw_rad=est.yaw_rad, dt_s=dt_s)
         alt = altitude_step(
             c,
@@ -218,38 +195,81 @@ class Controller:
         if yaw is None or alt is None or (mode is ControlMode.POSITION and pos is None):
             # Finite inputs whose arithmetic overflowed (absurd magnitudes): same contract.
             return _invalid(("overflow",))
-        if pos is None:  # LEVEL: tilt 0, forget the horizontal loops
-            nick = roll = 0
-            diag_pos = (0.0, 0.0, False, 0.0, 0.0, 0.0, 0.0)
-            new_pos = PositionState()
-        else:
-            nick, roll = pos.nick_counts, pos.roll_counts
-            diag_pos = (
-                pos.pitch_sp_rad,
-                pos.roll_sp_rad,
-                pos.tilt_clamped,
-                pos.vel_sp_x_mps,
-                pos.vel_sp_y_mps,
-                pos.acc_x_w_mps2,
-                pos.acc_y_w_mps2,
-            )
-            new_pos = pos.state
-        diag = ControlDiagnostics(
-            *diag_pos,
-            yaw_error_rad=yaw.error_rad,
-            yaw_rate_cmd_counts=yaw.rate_cmd_counts,
-            climb_sp_mps=alt.climb_sp_mps,
-            gas_ff=alt.gas_ff,
-            gas_pid=alt.gas_pid,
-            gas_total=alt.gas_total,
-        )
         command = Command(
             t_ns=est.t_ns,
-            nick_counts=nick,
-            roll_counts=roll,
+            nick_counts=0 if pos is None else pos.nick_counts,
+            roll_counts=0 if pos is None else pos.roll_counts,
             yaw_counts=yaw.yaw_counts,
             gas_counts=alt.gas_counts,
             take_control=take_control,
         )
+        # LEVEL (no position result): tilt 0, and the horizontal loops forget their state.
+        new_pos = PositionState() if pos is None else pos.state
         self.state = ControllerState(new_pos, yaw.state, alt.state, est.t_ns)
-        return ControlOutput(valid=True, command=command, diagnostics=diag)
+        return ControlOutput(valid=True, command=command, diagnostics=_diagnostics(pos, yaw, alt))
+
+
+def _invalid_inputs(
+    est: Estimate,
+    setpoint: Setpoint,
+    attitude: tuple[float, float],
+    battery_v: float,
+    mode: ControlMode,
+) -> tuple[str, ...]:
+    """The names of the inputs ``mode`` needs that are NaN/inf (see the module docstring).
+
+    A battery voltage at or below 0 is invalid too.
+    """
+    pitch_rad, roll_rad = attitude
+    needed = {
+        "est.yaw_rad": est.yaw_rad,
+        "est.height_m": est.height_m,
+        "est.vz_up_mps": est.vz_up_mps,
+        "setpoint.yaw_rad": setpoint.yaw_rad,
+        "setpoint.height_m": setpoint.height_m,
+        "setpoint.climb_ff_mps": setpoint.climb_ff_mps,
+        "pitch_rad": pitch_rad,
+        "roll_rad": roll_rad,
+    }
+    if mode is ControlMode.POSITION:
+        needed |= {
+            "est.x_m": est.x_m,
+            "est.y_m": est.y_m,
+            "est.vx_mps": est.vx_mps,
+            "est.vy_mps": est.vy_mps,
+            "setpoint.x_m": setpoint.x_m,
+            "setpoint.y_m": setpoint.y_m,
+        }
+    bad = [name for name, v in needed.items() if not math.isfinite(v)]
+    if not (math.isfinite(battery_v) and battery_v > 0.0):
+        bad.append("battery_v")
+    return tuple(bad)
+
+
+def _diagnostics(
+    pos: PositionResult | None, yaw: YawResult, alt: AltitudeResult
+) -> ControlDiagnostics:
+    """A valid step's intermediates (LEVEL, no position result: the horizontal ones 0)."""
+    if pos is None:
+        diag_pos: tuple[float, float, bool, float, float, float, float] = (
+            0.0, 0.0, False, 0.0, 0.0, 0.0, 0.0,
+        )  # fmt: skip
+    else:
+        diag_pos = (
+            pos.pitch_sp_rad,
+            pos.roll_sp_rad,
+            pos.tilt_clamped,
+            pos.vel_sp_x_mps,
+            pos.vel_sp_y_mps,
+            pos.acc_x_w_mps2,
+            pos.acc_y_w_mps2,
+        )
+    return ControlDiagnostics(
+        *diag_pos,
+        yaw_error_rad=yaw.error_rad,
+        yaw_rate_cmd_counts=yaw.rate_cmd_counts,
+        climb_sp_mps=alt.climb_sp_mps,
+        gas_ff=alt.gas_ff,
+        gas_pid=alt.gas_pid,
+        gas_total=alt.gas_total,
+    )

@@ -52,7 +52,8 @@ class Phase(enum.Enum):
     RELEASED = "released"
 
 
-_FLYING = (Phase.TAKEOFF, Phase.HOLD, Phase.LAND)
+FLYING_PHASES = (Phase.TAKEOFF, Phase.HOLD, Phase.LAND)
+"""The phases in the air: the controllers run and a set-point exists."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,6 +149,10 @@ class PhaseOutput:
     events: tuple[PhaseEvent, ...]
 
 
+_Transition = tuple[Phase, str]
+"""A phase change: the phase to go to and why."""
+
+
 def _step_toward(value: float, target: float, max_step: float) -> float:
     if abs(target - value) <= max_step:
         return target
@@ -199,62 +204,33 @@ def phase_step(
         state.land_since_ns,
     )
     events: list[PhaseEvent] = []
-
-    def go(to: Phase, reason: str) -> None:
-        nonlocal phase, start, land_since
-        events.append(PhaseEvent(t_ns, phase, to, reason))
-        phase, start, land_since = to, t_ns, None
-
-    fs = failsafe
-    if phase is not Phase.RELEASED and (fs >= FailsafeAction.RELEASE or requests.release):
-        go(
-            Phase.RELEASED,
-            "failsafe release" if fs >= FailsafeAction.RELEASE else "release request",
-        )
-    elif phase in (Phase.PREFLIGHT, Phase.HANDSHAKE) and (
-        fs >= FailsafeAction.LAND or requests.land
-    ):
-        go(Phase.RELEASED, "land before take-off")
-    elif phase in (Phase.TAKEOFF, Phase.HOLD) and (fs >= FailsafeAction.LAND or requests.land):
-        go(Phase.LAND, "failsafe land" if fs >= FailsafeAction.LAND else "land request")
-    elif phase is Phase.PREFLIGHT and requests.takeoff and fs < FailsafeAction.HOLD:
-        go(Phase.HANDSHAKE, "take-off request")
-    elif phase is Phase.HANDSHAKE:
-        finite = all(math.isfinite(v) for v in (est.x_m, est.y_m, est.yaw_rad, est.height_m))
-        elapsed_s = (t_ns - start) * 1e-9
-        if (
-            elapsed_s >= p.handshake_s
-            and requests.handshake_ok
-            and finite
-            and fs < FailsafeAction.HOLD
-        ):
+    asked = _asked_transition(p, state, t_ns=t_ns, est=est, requests=requests, fs=failsafe)
+    if asked is not None:
+        events.append(PhaseEvent(t_ns, phase, *asked))
+        phase, start, land_since = asked[0], t_ns, None
+        if phase is Phase.TAKEOFF:  # from the handshake: x, y, psi and height of now
             sp = Setpoint(est.x_m, est.y_m, est.yaw_rad, est.height_m)
-            go(Phase.TAKEOFF, "handshake confirmed")
-
-    frozen = fs in (FailsafeAction.HOLD, FailsafeAction.LEVEL_HOLD)
-    if phase in _FLYING and sp is not None:
-        if phase is Phase.TAKEOFF:
-            rate = 0.0 if frozen else p.climb_mps
-            h = _step_toward(sp.height_m, p.takeoff_height_m, rate * dt_s)
-            climb = rate if h != p.takeoff_height_m else 0.0
-            sp = replace(sp, height_m=h, climb_ff_mps=climb)
-            if h == p.takeoff_height_m:
-                go(Phase.HOLD, "take-off height reached")
-        elif phase is Phase.HOLD:
-            sp = replace(sp, climb_ff_mps=0.0)
-        else:  # LAND: a failsafe HOLD does not stop a landing (LAND outranks it anyway)
-            h = _step_toward(sp.height_m, p.land_floor_m, p.land_mps * dt_s)
-            sp = replace(sp, height_m=h, climb_ff_mps=-p.land_mps if h != p.land_floor_m else 0.0)
-            if _landed_now(p, est, last_gas_counts):
-                land_since = t_ns if land_since is None else land_since
-                if (t_ns - land_since) * 1e-9 >= p.land_detect_s:
-                    go(Phase.LANDED, "land detected")
-            else:
-                land_since = None
+    ended: _Transition | None = None
+    if phase in FLYING_PHASES and sp is not None:
+        frozen = failsafe in (FailsafeAction.HOLD, FailsafeAction.LEVEL_HOLD)
+        sp, land_since, ended = _fly(
+            p,
+            phase,
+            sp,
+            land_since,
+            t_ns=t_ns,
+            dt_s=dt_s,
+            frozen=frozen,
+            est=est,
+            last_gas_counts=last_gas_counts,
+        )
     elif phase is Phase.LANDED and (t_ns - start) * 1e-9 >= p.landed_idle_s:
-        go(Phase.RELEASED, "landed idle elapsed")
+        ended = (Phase.RELEASED, "landed idle elapsed")
+    if ended is not None:
+        events.append(PhaseEvent(t_ns, phase, *ended))
+        phase, start, land_since = ended[0], t_ns, None
 
-    flying = phase in _FLYING
+    flying = phase in FLYING_PHASES
     new_state = PhaseState(phase, t_ns, start, sp, land_since)
     return PhaseOutput(
         state=new_state,
@@ -263,6 +239,78 @@ def phase_step(
         run_controllers=flying,
         take_control=flying or phase is Phase.LANDED,
         gas_cut=phase is Phase.LANDED,
-        mode=ControlMode.LEVEL if fs is FailsafeAction.LEVEL_HOLD else ControlMode.POSITION,
+        mode=ControlMode.LEVEL if failsafe is FailsafeAction.LEVEL_HOLD else ControlMode.POSITION,
         events=tuple(events),
     )
+
+
+def _asked_transition(
+    p: PhaseParams,
+    state: PhaseState,
+    *,
+    t_ns: int,
+    est: Estimate,
+    requests: PhaseRequests,
+    fs: FailsafeAction,
+) -> _Transition | None:
+    """The change the failsafe or the requests ask for this step (first match wins)."""
+    phase = state.phase
+    if phase is not Phase.RELEASED and (fs >= FailsafeAction.RELEASE or requests.release):
+        return (
+            Phase.RELEASED,
+            "failsafe release" if fs >= FailsafeAction.RELEASE else "release request",
+        )
+    if phase in (Phase.PREFLIGHT, Phase.HANDSHAKE) and (fs >= FailsafeAction.LAND or requests.land):
+        return Phase.RELEASED, "land before take-off"
+    if phase in (Phase.TAKEOFF, Phase.HOLD) and (fs >= FailsafeAction.LAND or requests.land):
+        return Phase.LAND, "failsafe land" if fs >= FailsafeAction.LAND else "land request"
+    if phase is Phase.PREFLIGHT and requests.takeoff and fs < FailsafeAction.HOLD:
+        return Phase.HANDSHAKE, "take-off request"
+    if phase is Phase.HANDSHAKE:
+        finite = all(math.isfinite(v) for v in (est.x_m, est.y_m, est.yaw_rad, est.height_m))
+        elapsed_s = (t_ns - state.phase_start_ns) * 1e-9
+        if (
+            elapsed_s >= p.handshake_s
+            and requests.handshake_ok
+            and finite
+            and fs < FailsafeAction.HOLD
+        ):
+            return Phase.TAKEOFF, "handshake confirmed"
+    return None
+
+
+def _fly(
+    p: PhaseParams,
+    phase: Phase,
+    sp: Setpoint,
+    land_since: int | None,
+    *,
+    t_ns: int,
+    dt_s: float,
+    frozen: bool,
+    est: Estimate,
+    last_gas_counts: int | None,
+) -> tuple[Setpoint, int | None, _Transition | None]:
+    """A flying phase's set-point ramp: the new set-point, land-detect start and phase end.
+
+    ``frozen``: the failsafe holds, the take-off ramp stops. A failsafe HOLD does not stop
+    a landing (LAND outranks it anyway).
+    """
+    if phase is Phase.TAKEOFF:
+        rate = 0.0 if frozen else p.climb_mps
+        h = _step_toward(sp.height_m, p.takeoff_height_m, rate * dt_s)
+        climb = rate if h != p.takeoff_height_m else 0.0
+        sp = replace(sp, height_m=h, climb_ff_mps=climb)
+        if h == p.takeoff_height_m:
+            return sp, land_since, (Phase.HOLD, "take-off height reached")
+        return sp, land_since, None
+    if phase is Phase.HOLD:
+        return replace(sp, climb_ff_mps=0.0), land_since, None
+    h = _step_toward(sp.height_m, p.land_floor_m, p.land_mps * dt_s)
+    sp = replace(sp, height_m=h, climb_ff_mps=-p.land_mps if h != p.land_floor_m else 0.0)
+    if not _landed_now(p, est, last_gas_counts):
+        return sp, None, None
+    land_since = t_ns if land_since is None else land_since
+    if (t_ns - land_since) * 1e-9 >= p.land_detect_s:
+        return sp, land_since, (Phase.LANDED, "land detected")
+    return sp, land_since, None

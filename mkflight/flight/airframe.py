@@ -1,8 +1,7 @@
 """What the flight step knows of its airframe, and how it comes down without the hat.
 
 :class:`FlightAirframe` gathers, for :class:`~mkflight.flight.step.FlightCore`, the three
-pieces that make a flight fit the vehicle it is on (issue 17) rather than the
-configuration:
+pieces that make a flight fit the vehicle it is on rather than the configuration:
 
 * the **learner** (:mod:`mkflight.estimation.learner`): accelerometer biases, hover gas
   and vibration from the steady part of HOLD; the biases go into the estimator at once;
@@ -58,7 +57,7 @@ RECENT_MAX_GAP_S = 0.2
 UNLEARNED_DESCENT = 0.7
 """Before the hover gas is learned, a descent without the hat flies this fraction of
 ``control.land_mps``: the model's error (2-3 % of the hover gas, 0.1-0.2 m/s by the floor
-from 0.6 m) then still touches down below 0.5 m/s (issue 17's early-stall sweep)."""
+from 0.6 m) then still touches down below 0.5 m/s."""
 RECENT_MAX_ACC_G = 0.3
 """A sample accelerating harder than this (a jolt) is left out."""
 RECENT_HAT_FRESH_S = 0.15
@@ -161,23 +160,8 @@ class FlightAirframe:
         if acc_l is None or factor is None:
             return
         at_rest = on_floor and gas_counts == 0 and est.height_valid
-        lh = self._laser_height
-        if (
-            hold_s is not None
-            and self.learner.learned().hover_gas_counts is None  # once learned: not needed
-            and quiet
-            and gas_counts > 0
-            and lh is not None
-            and (imu.t_ns - lh[0]) / NS_PER_S <= RECENT_HAT_FRESH_S
-        ):
-            a_up = self.acc_up(imu, True)
-            gas = self._gas_lagged[1] if self._gas_lagged is not None else float(gas_counts)
-            if a_up is not None and abs(a_up) < RECENT_MAX_ACC_G * self.cfg.mk.g_mps2:
-                # gas = hover·factor·(1 + a/g): the loop's gas is the hover gas only on average
-                # over a level flight; this holds while it climbs or sinks too
-                self._track_recent_hover(
-                    imu.t_ns, gas / (factor * (1.0 + a_up / self.cfg.mk.g_mps2))
-                )
+        if hold_s is not None:
+            self._observe_hold_gas(imu, factor, quiet=quiet, gas_counts=gas_counts)
         steady = (
             hold_s is not None
             and hold_s >= LEARN_AFTER_HOLD_S
@@ -201,6 +185,35 @@ class FlightAirframe:
             at_rest=at_rest,
             noise_source_mps2=noise_source,
         )
+        self._apply_learned(steady=steady, at_rest=at_rest)
+
+    def _observe_hold_gas(
+        self, imu: ImuSample, factor: float, *, quiet: bool, gas_counts: int
+    ) -> None:
+        """In HOLD, before the hover gas is learned: track the gas flown as a hover gas.
+
+        Only while quiet, with gas, and on a fresh hat height (:data:`RECENT_HAT_FRESH_S`),
+        and leaving out jolts (:data:`RECENT_MAX_ACC_G`).
+        """
+        lh = self._laser_height
+        if (
+            self.learner.learned().hover_gas_counts is None  # once learned: not needed
+            and quiet
+            and gas_counts > 0
+            and lh is not None
+            and (imu.t_ns - lh[0]) / NS_PER_S <= RECENT_HAT_FRESH_S
+        ):
+            a_up = self.acc_up(imu, True)
+            gas = self._gas_lagged[1] if self._gas_lagged is not None else float(gas_counts)
+            if a_up is not None and abs(a_up) < RECENT_MAX_ACC_G * self.cfg.mk.g_mps2:
+                # gas = hover·factor·(1 + a/g): the loop's gas is the hover gas only on average
+                # over a level flight; this holds while it climbs or sinks too
+                self._track_recent_hover(
+                    imu.t_ns, gas / (factor * (1.0 + a_up / self.cfg.mk.g_mps2))
+                )
+
+    def _apply_learned(self, *, steady: bool, at_rest: bool) -> None:
+        """Give the estimator what the learner has new: vibration and accelerometer biases."""
         learned = self.learner.learned()
         if learned is self._applied:
             return  # nothing new (the learner refreshes every few samples)

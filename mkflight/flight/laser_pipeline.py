@@ -43,7 +43,7 @@ import numpy.typing as npt
 from mkflight.config import Config
 from mkflight.msgs import Pose2D, Scan
 from mkflight.scanmatch.geometry import FloatArray, Pose, wrap_angle
-from mkflight.scanmatch.icp import icp_params_from_config
+from mkflight.scanmatch.icp import MatchResult, icp_params_from_config
 from mkflight.scanmatch.keyframe import KeyframeMatcher
 from mkflight.urg.hat import HatSettings, hat_height
 from mkflight.urg.units import URG_04LX
@@ -262,18 +262,7 @@ class LaserPipeline:
         if not (math.isfinite(pitch_rad) and math.isfinite(roll_rad)):
             # the FC's attitude is garbage: the vehicle flies level (as commanded then)
             pitch_rad = roll_rad = 0.0
-        hat_mask = _in(steps, self._laser.hat_steps)
-        height_m: float | None = None
-        if bad_scan:
-            height_reason = bad_scan
-        elif not hat_mask.any():
-            height_reason = f"no hat steps {self._laser.hat_steps} in the scan"
-        else:
-            hat = hat_height(ranges[hat_mask], pitch_rad, roll_rad, self._hat)
-            height_reason = hat.reason
-            if hat.valid:
-                height_m = hat.height_m
-
+        height_m, height_reason = self._height(ranges, steps, pitch_rad, roll_rad, bad_scan)
         scan_mask = _in(steps, self._laser.scan_steps)
         floor = None if height_m is None else height_m + self._laser.hat_offset_m
         points = level_points(
@@ -285,32 +274,13 @@ class LaserPipeline:
             max_range_m=self._laser.max_range_m,
             floor_depth_m=floor,
         )
-
-        dt_s = None
-        if self._prev_t_ns is not None:
-            dt_s = (scan.t_ns - self._prev_t_ns) / _NS_PER_S
-            dt_s = dt_s if MIN_DT_S <= dt_s <= MAX_DT_S else None
-        self._prev_t_ns = scan.t_ns
-        prior = _usable_prior(motion_prior)
-        update = self._matcher.update(points, motion_prior=prior, dt_s=dt_s)
+        dt_s = self._scan_interval_s(scan.t_ns)
+        update = self._matcher.update(points, motion_prior=_usable_prior(motion_prior), dt_s=dt_s)
         result = update.result
         n_points = int(points.shape[0])
-
-        pose: Pose2D | None = None
         if update.new_keyframe:
             self._have_reference = True
-        if result.valid and self._have_reference:
-            x_m, y_m, yaw_rad = pose_from_math(update.pose)
-            pose, pose_reason = Pose2D(scan.t_ns, x_m, y_m, yaw_rad), ""
-        elif bad_scan:
-            pose_reason = bad_scan
-        elif not self._have_reference:
-            pose_reason = f"no reference scan yet ({n_points} usable points)"
-        else:
-            pose_reason = (
-                f"match failed: {n_points} points, {result.matched_fraction:.2f} matched, "
-                f"rms {result.rms_m:.3f} m"
-            )
+        pose, pose_reason = self._pose(scan.t_ns, update.pose, result, bad_scan, n_points)
         return LaserResult(
             scan_t_ns=scan.t_ns,
             seq=scan.seq,
@@ -325,4 +295,46 @@ class LaserPipeline:
             n_points=n_points,
             compute_s=time.thread_time() - t0_cpu,
             elapsed_s=time.perf_counter() - t0,
+        )
+
+    def _height(
+        self,
+        ranges: FloatArray,
+        steps: IntArray,
+        pitch_rad: float,
+        roll_rad: float,
+        bad_scan: str,
+    ) -> tuple[float | None, str]:
+        """The hat height (eq 26) and "", or None and why not."""
+        hat_mask = _in(steps, self._laser.hat_steps)
+        if bad_scan:
+            return None, bad_scan
+        if not hat_mask.any():
+            return None, f"no hat steps {self._laser.hat_steps} in the scan"
+        hat = hat_height(ranges[hat_mask], pitch_rad, roll_rad, self._hat)
+        return (hat.height_m if hat.valid else None), hat.reason
+
+    def _scan_interval_s(self, t_ns: int) -> float | None:
+        """Seconds since the previous scan, None outside ``MIN_DT_S``..``MAX_DT_S``."""
+        dt_s = None
+        if self._prev_t_ns is not None:
+            dt_s = (t_ns - self._prev_t_ns) / _NS_PER_S
+            dt_s = dt_s if MIN_DT_S <= dt_s <= MAX_DT_S else None
+        self._prev_t_ns = t_ns
+        return dt_s
+
+    def _pose(
+        self, t_ns: int, pose_math: Pose, result: MatchResult, bad_scan: str, n_points: int
+    ) -> tuple[Pose2D | None, str]:
+        """The match's pose in W stamped ``t_ns`` and "", or None and why not."""
+        if result.valid and self._have_reference:
+            x_m, y_m, yaw_rad = pose_from_math(pose_math)
+            return Pose2D(t_ns, x_m, y_m, yaw_rad), ""
+        if bad_scan:
+            return None, bad_scan
+        if not self._have_reference:
+            return None, f"no reference scan yet ({n_points} usable points)"
+        return None, (
+            f"match failed: {n_points} points, {result.matched_fraction:.2f} matched, "
+            f"rms {result.rms_m:.3f} m"
         )

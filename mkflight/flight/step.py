@@ -11,8 +11,10 @@ and timestamps in, values out, no I/O and no clock reads. Two entry points, one 
   set-point; the controllers give the command. Returns the command to send (always within
   its limits: a step whose inputs are not finite sends the last safe command, SPEC §5),
   the failsafe action with its causes and transitions, the phase and the TABLE IV row.
+  Its rules are pure functions of their inputs in :mod:`mkflight.flight.step_rules`; this
+  class holds the state they act on.
 
-Fail-safe rules enforced here (SPEC §5, and a review of the first simulated flights):
+Fail-safe rules enforced here (SPEC §5):
 
 * a step is "non-finite" when the estimate or the IMU sample holds NaN/inf, when the
   estimator rejected the sample (its estimate is stale), or when the controller cannot
@@ -31,6 +33,8 @@ Fail-safe rules enforced here (SPEC §5, and a review of the first simulated fli
 * take-off needs a valid pose and height; the laser's age counts from when the pose
   ARRIVED (SPEC §5: "no pose for 300 ms"), not from when the scan was taken.
 
+MK data that stops is not judged here: the step runs on each DebugOut's arrival, and the
+link (:mod:`mkflight.mk.subscription`) re-subscribes and then releases while it waits.
 The shell (daemon, simulator, replay) owns ports, time and files; it only moves values.
 """
 
@@ -43,8 +47,10 @@ from mkflight.clock import NS_PER_S
 from mkflight.config import Config
 from mkflight.control.controller import Controller, ControlMode, Setpoint
 from mkflight.control.phases import (
+    FLYING_PHASES,
     Phase,
     PhaseEvent,
+    PhaseOutput,
     PhaseParams,
     PhaseRequests,
     PhaseState,
@@ -52,42 +58,61 @@ from mkflight.control.phases import (
 )
 from mkflight.estimation.estimator import Estimator
 from mkflight.flight.airframe import FlightAirframe
+from mkflight.flight.step_rules import (
+    CommandSource,
+    PilotSticks,
+    failsafe_inputs,
+    finite_estimate,
+    finite_imu,
+    hold_setpoint,
+    laser_age_s,
+    select_command,
+    table3_row,
+    table4_row,
+    takeoff_gate,
+)
 from mkflight.logs.table3 import Table3Row
 from mkflight.logs.table4 import Table4Row
 from mkflight.msgs import Command, Estimate, ImuSample, Pose2D, plausible_imu
 from mkflight.safety.failsafe import (
     Failsafe,
     FailsafeAction,
-    FailsafeInputs,
+    FailsafeOutput,
     StopRequest,
     TransitionEvent,
 )
 
-TOUCHDOWN_HEIGHT_M = 0.15
-"""Below this height in LAND a degenerate scan no longer raises the failsafe."""
+__all__ = [
+    "MAX_HOLD_OFFSET_M",
+    "SCAN_AGE_ALLOWANCE_S",
+    "FlightCore",
+    "ImuStepOutput",
+    "PilotSticks",
+]
+
 SCAN_AGE_ALLOWANCE_S = 0.1
 """The estimator judges a pose or height by its SCAN's time, the failsafe by its arrival
 (SPEC §5: no pose for ``safety.laser_stale_s``). A scan is already ~0.06-0.1 s old when
-its result reaches the step, so a threshold of ``laser_stale_s`` on the scan's time left
-one late scan (0.1 s, a loaded CPU) between a hover and a failsafe landing; this is the
-allowance for the scan's own age."""
+its result reaches the step, so a threshold of ``laser_stale_s`` on the scan's time would
+leave one late scan (0.1 s, a loaded CPU) between a hover and a failsafe landing; this is
+the allowance for the scan's own age."""
 MAX_HOLD_OFFSET_M = 1.0
 """The largest HOLD set-point offset :meth:`FlightCore.set_hold_offset` accepts."""
 
 
 @dataclass(frozen=True, slots=True)
-class PilotSticks:
-    """The pilot's sticks as the FC reports them (logged in TABLE IV), MK counts."""
-
-    pitch_counts: int = 0
-    roll_counts: int = 0
-    yaw_counts: int = 0
-    thrust_counts: int = 0
-
-
-@dataclass(frozen=True, slots=True)
 class ImuStepOutput:
-    """What one 50 ms step decided."""
+    """What one 50 ms step decided.
+
+    Attributes:
+        command: the command to send (within its limits; stamped with the step's time).
+        action: the failsafe's action.
+        phase: the phase after the step.
+        estimate: the estimate the step flew on.
+        row: the step's TABLE IV row.
+        failsafe_events: the failsafe's transitions of this step.
+        phase_events: the phase changes of this step.
+    """
 
     command: Command
     action: FailsafeAction
@@ -96,8 +121,6 @@ class ImuStepOutput:
     row: Table4Row
     failsafe_events: tuple[TransitionEvent, ...] = ()
     phase_events: tuple[PhaseEvent, ...] = ()
-    used_last_command: bool = False
-    resubscribe_mk: bool = False
 
 
 @dataclass(slots=True)
@@ -247,18 +270,7 @@ class FlightCore:
         if ls is None or not used:
             return None  # no new pose: no new TABLE III row
         self._index3 += 1
-        return Table3Row(
-            ls.w_vel_x_mps,
-            ls.b_vel_x_mps,
-            ls.b_esti_vel_x_mps,
-            ls.w_vel_y_mps,
-            ls.b_vel_y_mps,
-            ls.b_esti_vel_y_mps,
-            ls.x_m,
-            ls.y_m,
-            ls.yaw_rad,
-            self._index3,
-        )
+        return table3_row(ls, self._index3)
 
     def _since_s(self, t_ns: int) -> str:
         """``t+12.35s``: seconds since the first step, for the failsafe lines.
@@ -275,225 +287,176 @@ class FlightCore:
         sticks: PilotSticks | None = None,
         stop: StopRequest | None = None,
         pilot_override: bool = False,
-        mk_age_s: float = 0.0,
     ) -> ImuStepOutput:
-        """One DebugOut: estimate, failsafe, phase, command (see the module docstring)."""
+        """One DebugOut: estimate, failsafe, phase, command (see the module docstring).
+
+        A composition of the rules in :mod:`mkflight.flight.step_rules` around this
+        object's state, in this order: the estimate, the failsafe, the airframe learner,
+        the phases, the command, the phase hand-back, the TABLE IV row.
+        """
         imu = plausible_imu(imu)
-        self.counters.imu_steps += 1
         t_ns = imu.t_ns
-        if self._first_ns is None:
-            self._first_ns = t_ns
-        self._now_ns = max(self._now_ns, t_ns)
-        flying = self.phase_state.phase in (Phase.TAKEOFF, Phase.HOLD, Phase.LAND)
-        thrust_up = self.airframe.thrust_up(
-            imu,
-            flying=flying and self.last_command.take_control,
-            gas_counts=self.last_command.gas_counts,
-            integral_gas=self.controller.state.altitude.climb.integral,
+        self._start_step(t_ns)
+        phase_before = self.phase_state.phase
+        flying = phase_before in FLYING_PHASES
+        est, fresh = self._estimate(imu, flying=flying)
+        finite = fresh and finite_estimate(est) and finite_imu(imu) and self._invalid_run == 0
+        age_s = laser_age_s(
+            t_ns, self._last_pose_arrival_ns, flying=flying, height_valid=est.height_valid
         )
-        est = self.estimator.on_imu(imu, thrust_up_mps2=thrust_up)
-        fresh = est.t_ns == t_ns  # the estimator took this sample (else: stale estimate)
-        est = self.airframe.without_hat(
-            imu,
-            est,
-            fresh=fresh,
-            flying=flying,
-            gas_counts=self.last_command.gas_counts,
-            integral_gas=self.controller.state.altitude.climb.integral,
-        )
-        if self._last_pose_arrival_ns is None or (flying and not est.height_valid):
-            laser_age_s = math.inf  # no pose yet, or no hat height: the laser is stale
-        else:
-            laser_age_s = (t_ns - self._last_pose_arrival_ns) / NS_PER_S
-        finite = fresh and _finite_estimate(est) and _finite_imu(imu) and self._invalid_run == 0
         fs = self.failsafe.update(
-            FailsafeInputs(
-                t_ns=t_ns,
+            failsafe_inputs(
+                imu,
+                est,
+                phase=phase_before,
                 values_finite=finite,
-                # Before take-off the laser's age is not a flight risk (it blocks take-off
-                # through the pre-flight checks instead).
-                laser_age_s=laser_age_s if flying else 0.0,
-                # At touchdown the scan plane meets the floor: degenerate, and irrelevant.
-                scan_degenerate=self._degenerate
-                and flying
-                and not (
-                    self.phase is Phase.LAND
-                    and math.isfinite(est.height_m)
-                    and est.height_m < TOUCHDOWN_HEIGHT_M
-                ),
-                mk_age_s=mk_age_s,
-                x_m=est.x_m,
-                y_m=est.y_m,
-                height_m=est.height_m,
-                battery_v=imu.battery_v,
+                laser_age_s=age_s,
+                scan_degenerate=self._degenerate,
                 stop=stop,
                 pilot_override=pilot_override,
             )
         )
         if fresh and finite:
-            st = self.phase_state
-            self.airframe.observe(
-                imu,
-                est,
-                hold_s=(t_ns - st.phase_start_ns) / NS_PER_S if st.phase is Phase.HOLD else None,
-                quiet=fs.action <= FailsafeAction.WARN and self.last_command.take_control,
-                gas_counts=self.last_command.gas_counts,
-                on_floor=st.phase in (Phase.PREFLIGHT, Phase.HANDSHAKE),
-            )
-        if not (est.pose_valid and est.height_valid):
-            requests = PhaseRequests(
-                takeoff=False,  # never take off without a valid pose and height
-                land=requests.land,
-                release=requests.release,
-                handshake_ok=requests.handshake_ok,
-            )
+            self._learn(imu, est, fs.action)
         out_phase = phase_step(
             self.phase_params,
             self.phase_state,
             t_ns=t_ns,
             est=est,
-            requests=requests,
+            requests=takeoff_gate(requests, est),
             failsafe=fs.action,
             last_gas_counts=self.last_command.gas_counts,
         )
         self.phase_state = out_phase.state
-        command = Command(t_ns, 0, 0, 0, 0, take_control=out_phase.take_control)
-        used_last = False
-        setpoint = out_phase.setpoint
-        if setpoint is not None and out_phase.phase is Phase.HOLD and self._hold_offset_m != (0, 0):
-            dx, dy = self._hold_offset_m
-            setpoint = replace(setpoint, x_m=setpoint.x_m + dx, y_m=setpoint.y_m + dy)
-        self.active_setpoint = setpoint
-        if out_phase.run_controllers and setpoint is not None:
-            mode = out_phase.mode if est.pose_valid else ControlMode.LEVEL
-            dt_s = _dt_s(t_ns, self.controller.last_valid_t_ns)
-            control = None
-            if fresh:
-                control = self.controller.update(
-                    est,
-                    setpoint,
-                    (imu.pitch_rad, imu.roll_rad),
-                    imu.battery_v,
-                    dt_s,
-                    mode=mode,
-                    take_control=out_phase.take_control,
-                )
-            ok = (
-                control is not None
-                and control.valid
-                and control.command is not None
-                and not fs.use_last_command
-            )
-            landing = fs.action >= FailsafeAction.LAND and out_phase.phase is Phase.LAND
-            cannot_fly = not ok and self._invalid_run >= self.cfg.safety.nonfinite_land_steps
-            descending = self.airframe.descent is not None
-            if landing and (descending or not est.height_valid or cannot_fly):
-                inertial = fresh and _finite_imu(imu) and math.isfinite(est.vz_up_mps)
-                command = self._descend(
-                    t_ns, imu, est, inertial=inertial, take_control=out_phase.take_control
-                )
-            elif ok and control is not None and control.command is not None:
-                command = control.command
-                self._invalid_run = 0
-            else:
-                self.counters.invalid_steps += 1
-                self._invalid_run += 1
-                used_last = True
-                last = self.last_command
-                command = Command(
-                    t_ns,
-                    last.nick_counts,
-                    last.roll_counts,
-                    last.yaw_counts,
-                    last.gas_counts,
-                    take_control=out_phase.take_control,
-                )
-        if out_phase.gas_cut:
-            command = Command(t_ns, 0, 0, 0, 0, take_control=command.take_control)
-        if fs.action is FailsafeAction.RELEASE:
-            command = Command(t_ns, 0, 0, 0, 0, take_control=False)
-        phase, phase_events = out_phase.phase, tuple(out_phase.events)
-        if self._pending_phase_events:  # the descent found the floor: LANDED now
-            phase = self.phase_state.phase
-            phase_events = (*phase_events, *self._pending_phase_events)
-            self._pending_phase_events.clear()
-        if not command.take_control and phase in (Phase.TAKEOFF, Phase.HOLD, Phase.LAND):
-            # Handed to the pilot in the air (a descent that found no floor): final. A pose
-            # or height coming back later must never take control again (sticky, SPEC §5).
-            event = PhaseEvent(t_ns, phase, Phase.RELEASED, "handed to the pilot in the air")
-            self.phase_state = replace(self.phase_state, phase=Phase.RELEASED, setpoint=None)
-            phase, phase_events = Phase.RELEASED, (*phase_events, event)
+        command = self._command(imu, est, out_phase, fs, fresh=fresh)
+        phase, phase_events = self._settle_phase(t_ns, out_phase, command)
         self.last_command = command
         self.counters.failsafe_events += [
-            f"{self._since_s(e.t_ns)} {e.action.name} {_cause(e.cause)}" for e in fs.events
+            f"{self._since_s(e.t_ns)} {e.action.name} {e.cause.value}" for e in fs.events
         ]
-        s = sticks or PilotSticks()
         self._index4 += 1
-        row = Table4Row(
-            imu.pitch_rad,
-            imu.roll_rad,
-            imu.yaw_rad,
-            imu.acc_x_mps2,
-            imu.acc_y_mps2,
-            imu.acc_z_mps2,
-            command.nick_counts,
-            command.roll_counts,
-            command.yaw_counts,
-            s.pitch_counts,
-            s.roll_counts,
-            s.yaw_counts,
-            s.thrust_counts,
-            self._index4,
-        )
         return ImuStepOutput(
             command=command,
             action=fs.action,
             phase=phase,
             estimate=est,
-            row=row,
+            row=table4_row(imu, command, sticks or PilotSticks(), self._index4),
             failsafe_events=tuple(fs.events),
             phase_events=phase_events,
-            used_last_command=used_last,
-            resubscribe_mk=fs.resubscribe_mk,
         )
 
+    def _start_step(self, t_ns: int) -> None:
+        """Count the step; the first step's time starts the flight's clock for the log."""
+        self.counters.imu_steps += 1
+        if self._first_ns is None:
+            self._first_ns = t_ns
+        self._now_ns = max(self._now_ns, t_ns)
 
-def _cause(cause: object) -> str:
-    return str(getattr(cause, "value", cause))
+    def _estimate(self, imu: ImuSample, *, flying: bool) -> tuple[Estimate, bool]:
+        """The estimate after ``imu``, and whether the estimator took it (fresh).
+
+        The thrust model aids the vertical channel while flying with control; without the
+        hat height the airframe's model-aided channel gives height and vertical speed.
+        """
+        last = self.last_command
+        integral_gas = self.controller.state.altitude.climb.integral
+        thrust_up = self.airframe.thrust_up(
+            imu,
+            flying=flying and last.take_control,
+            gas_counts=last.gas_counts,
+            integral_gas=integral_gas,
+        )
+        est = self.estimator.on_imu(imu, thrust_up_mps2=thrust_up)
+        fresh = est.t_ns == imu.t_ns  # else the estimator rejected it: a stale estimate
+        est = self.airframe.without_hat(
+            imu,
+            est,
+            fresh=fresh,
+            flying=flying,
+            gas_counts=last.gas_counts,
+            integral_gas=integral_gas,
+        )
+        return est, fresh
+
+    def _learn(self, imu: ImuSample, est: Estimate, action: FailsafeAction) -> None:
+        """Let the airframe learner see a fresh, finite sample (:mod:`.airframe`)."""
+        st = self.phase_state
+        self.airframe.observe(
+            imu,
+            est,
+            hold_s=(imu.t_ns - st.phase_start_ns) / NS_PER_S if st.phase is Phase.HOLD else None,
+            quiet=action <= FailsafeAction.WARN and self.last_command.take_control,
+            gas_counts=self.last_command.gas_counts,
+            on_floor=st.phase in (Phase.PREFLIGHT, Phase.HANDSHAKE),
+        )
+
+    def _command(
+        self,
+        imu: ImuSample,
+        est: Estimate,
+        out_phase: PhaseOutput,
+        fs: FailsafeOutput,
+        *,
+        fresh: bool,
+    ) -> Command:
+        """Run the controller on a fresh sample, then send what :func:`select_command` picks."""
+        t_ns = imu.t_ns
+        setpoint = hold_setpoint(out_phase.setpoint, out_phase.phase, self._hold_offset_m)
+        self.active_setpoint = setpoint
+        control = None
+        if out_phase.run_controllers and setpoint is not None and fresh:
+            control = self.controller.update(
+                est,
+                setpoint,
+                (imu.pitch_rad, imu.roll_rad),
+                imu.battery_v,
+                _dt_s(t_ns, self.controller.last_valid_t_ns),
+                mode=out_phase.mode if est.pose_valid else ControlMode.LEVEL,
+                take_control=out_phase.take_control,
+            )
+        choice = select_command(
+            t_ns,
+            phase=out_phase,
+            setpoint=setpoint,
+            action=fs.action,
+            control=control,
+            use_last_command=fs.use_last_command,
+            height_valid=est.height_valid,
+            descending=self.airframe.descent is not None,
+            invalid_run=self._invalid_run,
+            nonfinite_land_steps=self.cfg.safety.nonfinite_land_steps,
+            last=self.last_command,
+        )
+        if choice.source is CommandSource.CONTROLLER:
+            self._invalid_run = 0
+        elif choice.source is CommandSource.LAST_SAFE:
+            self.counters.invalid_steps += 1
+            self._invalid_run += 1
+        if choice.command is not None:
+            return choice.command
+        inertial = fresh and finite_imu(imu) and math.isfinite(est.vz_up_mps)
+        return self._descend(t_ns, imu, est, inertial=inertial, take_control=out_phase.take_control)
+
+    def _settle_phase(
+        self, t_ns: int, out_phase: PhaseOutput, command: Command
+    ) -> tuple[Phase, tuple[PhaseEvent, ...]]:
+        """The phase after the command, with this step's phase events.
+
+        The descent may have found the floor (LANDED). A command that hands control to
+        the pilot in the air (a descent that found no floor) makes the phase RELEASED for
+        good: a pose or height coming back later never takes control again (SPEC §5).
+        """
+        phase, phase_events = out_phase.phase, tuple(out_phase.events)
+        if self._pending_phase_events:
+            phase = self.phase_state.phase
+            phase_events = (*phase_events, *self._pending_phase_events)
+            self._pending_phase_events.clear()
+        if not command.take_control and phase in FLYING_PHASES:
+            event = PhaseEvent(t_ns, phase, Phase.RELEASED, "handed to the pilot in the air")
+            self.phase_state = replace(self.phase_state, phase=Phase.RELEASED, setpoint=None)
+            phase, phase_events = Phase.RELEASED, (*phase_events, event)
+        return phase, phase_events
 
 
 def _dt_s(t_ns: int, last_ns: int | None) -> float:
     return math.nan if last_ns is None else (t_ns - last_ns) / NS_PER_S
-
-
-def _finite_estimate(est: Estimate) -> bool:
-    return all(
-        math.isfinite(v)
-        for v in (
-            est.x_m,
-            est.y_m,
-            est.yaw_rad,
-            est.height_m,
-            est.vx_mps,
-            est.vy_mps,
-            est.vz_up_mps,
-        )
-    )
-
-
-def _finite_imu(imu: ImuSample) -> bool:
-    return (
-        all(
-            math.isfinite(v)
-            for v in (
-                imu.pitch_rad,
-                imu.roll_rad,
-                imu.yaw_rad,
-                imu.acc_x_mps2,
-                imu.acc_y_mps2,
-                imu.acc_z_mps2,
-                imu.battery_v,
-            )
-        )
-        and imu.battery_v > 0
-    )

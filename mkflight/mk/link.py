@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator, Callable
+from collections.abc import Callable
 
 import structlog
 
@@ -328,11 +328,6 @@ class MkLink:
         """Why commands that take control are refused (None: they are allowed)."""
         return self._tx.blocked
 
-    @property
-    def _pending_confirms(self) -> dict[int, int]:
-        """Frame number -> send time (ns) of the commands whose confirm is awaited."""
-        return self._tx.pending_confirms
-
     def set_blind_command(self, provider: Callable[[], ExternControl | None] | None) -> None:
         """Who says what the FC should fly if the DebugOut stops (None: nobody).
 
@@ -357,11 +352,6 @@ class MkLink:
             LinkError: the link failed, or nothing arrived within ``timeout_s``.
         """
         return await self._rx.next_sample(timeout_s)
-
-    async def samples(self, timeout_s: float | None = None) -> AsyncIterator[ImuSample]:
-        """Iterate over DebugOut samples (see :meth:`next_sample`)."""
-        while True:
-            yield await self.next_sample(timeout_s)
 
     # ----- sending (delegated to the CommandSender, mkflight.mk.sender) -----------------
 

@@ -18,9 +18,8 @@ NaN/inf in estimate or command (this step)       NONFINITE -> WARN; ``use_last_c
 laser pose older than ``laser_stale_s``          LASER_STALE -> LEVEL_HOLD, LAND after
                                                  ``degenerate_land_s``
 scan match degenerate                            SCAN_DEGENERATE -> same as LASER_STALE
-MK data older than ``mk_stale_s``                MK_STALE -> WARN; ``resubscribe_mk`` while
-                                                 stale
-MK data older than ``mk_release_s``              MK_LOST -> RELEASE
+no DebugOut for ``mk_stale_s``/``mk_release_s``  none here: the link re-subscribes, then
+                                                 releases (see below)
 outside ``+-box_m`` of home / above max height   OUT_OF_BOX / ABOVE_MAX_HEIGHT -> HOLD, LAND
                                                  after ``hold_land_s``
 filtered battery below warn / land voltage       BATTERY_WARN -> WARN / BATTERY_LOW -> LAND
@@ -33,6 +32,13 @@ Timed escalations run on the cause's own clock from the moment it was raised (la
 a laser that comes back after 0.4 s still lands at 1 s). Ages that are NaN count as stale.
 A non-finite position/height skips the box check that step (the NONFINITE row covers
 it); a non-finite or non-positive battery sample is ignored by the sag filter.
+
+SPEC §5's MK rows (no DebugOut for ``safety.mk_stale_s``: re-subscribe; for
+``safety.mk_release_s``: hand control back) are not checked here. The flight step runs on
+a DebugOut's arrival, so it never runs while the MK data is stale: the link enforces them
+while the consumer waits for its next sample (:mod:`mkflight.mk.subscription`: the blind
+command and the re-subscription after ``mk_stale_s``, Config = 0 after ``mk_release_s``
+with control taken, also when a frozen process reads the late sample first).
 """
 
 from __future__ import annotations
@@ -74,8 +80,6 @@ class Cause(enum.Enum):
     NONFINITE_REPEATED = "nonfinite_repeated"
     LASER_STALE = "laser_stale"
     SCAN_DEGENERATE = "scan_degenerate"
-    MK_STALE = "mk_stale"
-    MK_LOST = "mk_lost"
     OUT_OF_BOX = "out_of_box"
     ABOVE_MAX_HEIGHT = "above_max_height"
     BATTERY_WARN = "battery_warn"
@@ -104,7 +108,6 @@ class FailsafeInputs:
         values_finite: the estimate and the command of this step are free of NaN/inf.
         laser_age_s: seconds since the last laser pose (inf if none yet).
         scan_degenerate: the scan matcher flagged this match as degenerate.
-        mk_age_s: seconds since the last DebugOut (inf if none yet).
         x_m: estimated position x in W (m); checked against home +- box_m.
         y_m: estimated position y in W (m).
         height_m: estimated height (m, up); checked against max_height_m.
@@ -117,7 +120,6 @@ class FailsafeInputs:
     values_finite: bool = True
     laser_age_s: float = 0.0
     scan_degenerate: bool = False
-    mk_age_s: float = 0.0
     x_m: float = 0.0
     y_m: float = 0.0
     height_m: float = 0.0
@@ -146,7 +148,6 @@ class FailsafeOutput:
         causes: every latched cause with its current action, most severe first.
         events: this step's transitions (raise or escalation), in check order.
         use_last_command: this step's values are non-finite: send the last safe command.
-        resubscribe_mk: MK data is stale: send a DebugOut subscription now.
         battery_filtered_v: the sag-filtered voltage (NaN until the first valid sample).
         nonfinite_steps: consecutive steps with non-finite values so far.
     """
@@ -155,7 +156,6 @@ class FailsafeOutput:
     causes: tuple[tuple[Cause, FailsafeAction], ...]
     events: tuple[TransitionEvent, ...]
     use_last_command: bool
-    resubscribe_mk: bool
     battery_filtered_v: float
     nonfinite_steps: int
 
@@ -245,12 +245,7 @@ class Failsafe:
             active.append((Cause.LASER_STALE, f"pose age {inp.laser_age_s:.3f} s"))
         if inp.scan_degenerate:
             active.append((Cause.SCAN_DEGENERATE, "scan match degenerate"))
-        # Row 3: MK stale / lost.
-        mk_stale = _stale(inp.mk_age_s, s.mk_stale_s)
-        if mk_stale:
-            active.append((Cause.MK_STALE, f"DebugOut age {inp.mk_age_s:.3f} s"))
-        if _stale(inp.mk_age_s, s.mk_release_s):
-            active.append((Cause.MK_LOST, f"DebugOut age {inp.mk_age_s:.3f} s"))
+        # Row 3 (MK data stale) is the link's: see the module docstring.
         # Row 4: geofence.
         dx, dy = inp.x_m - self.home_x_m, inp.y_m - self.home_y_m
         if math.isfinite(dx) and math.isfinite(dy) and max(abs(dx), abs(dy)) > s.box_m:
@@ -283,7 +278,6 @@ class Failsafe:
             causes=self.causes,
             events=tuple(events),
             use_last_command=not inp.values_finite,
-            resubscribe_mk=mk_stale,
             battery_filtered_v=self._battery_v,
             nonfinite_steps=self._nonfinite_steps,
         )
@@ -299,8 +293,6 @@ class Failsafe:
         fixed = {
             Cause.NONFINITE: a.WARN,
             Cause.NONFINITE_REPEATED: a.LAND,
-            Cause.MK_STALE: a.WARN,
-            Cause.MK_LOST: a.RELEASE,
             Cause.BATTERY_WARN: a.WARN,
             Cause.BATTERY_LOW: a.LAND,
             Cause.PILOT_OVERRIDE: a.RELEASE,

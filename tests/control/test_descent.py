@@ -1,4 +1,4 @@
-"""The descent without the hat: it finds the floor, softly, on what is left (issue 17 item 4)."""
+"""The descent without the hat: it finds the floor, softly, on what is left."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from mkflight.estimation.vertical import VerticalDeadReckoning
 from .vertical_world import STEP_NS, VerticalWorld
 
 PARAMS = DescentParams()
-MAX_TOUCHDOWN_MPS = 0.5  # issue 17: every touchdown
+MAX_TOUCHDOWN_MPS = 0.5  # SPEC §8: every touchdown at most this fast
 
 
 def land(

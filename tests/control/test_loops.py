@@ -62,7 +62,7 @@ def test_target_ahead_nose_down_positive_nick() -> None:
 def test_target_right_right_side_down_negative_roll() -> None:
     nick, roll, _, roll_rad = _pos(y_sp=0.2)
     assert roll_rad > 0  # right side down
-    assert roll < 0  # MK: stick right is negative (seed §B: -516)
+    assert roll < 0  # MK: stick right is negative (the 2011 documentation §B: -516)
     assert nick == 0
 
 

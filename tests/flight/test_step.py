@@ -97,14 +97,15 @@ def test_nonfinite_steps_send_the_last_safe_command_then_land() -> None:
     core = FlightCore(CFG)
     t_ns = fly_to_hold(core)
     last = core.last_command
+    invalid_before = core.counters.invalid_steps
     actions = []
-    for _ in range(CFG.safety.nonfinite_land_steps):
+    for k in range(1, CFG.safety.nonfinite_land_steps + 1):
         t_ns += STEP_NS
         out = core.imu_step(
             level_imu(t_ns, pitch_rad=math.nan), PhaseRequests(takeoff=True, handshake_ok=True)
         )
         actions.append(out.action)
-        assert out.used_last_command
+        assert core.counters.invalid_steps == invalid_before + k  # the last safe command
         assert (out.command.nick_counts, out.command.gas_counts) == (
             last.nick_counts,
             last.gas_counts,

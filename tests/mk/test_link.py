@@ -108,7 +108,8 @@ async def test_frames_are_spaced_by_the_minimum_gap(pair: tuple[MkLink, FakeFc])
     await asyncio.wait_for(_until(lambda: fc.count("b") == 1, fc), 1.0)
     assert fc.commands()[0].nick == 5
     assert await link.wait_confirm(2, timeout_s=1.0)
-    assert link._pending_confirms == {}  # the superseded frame is not waited for
+    assert await link.wait_confirm(1, timeout_s=0.0)  # the superseded frame is not waited for
+    assert link.stats.superseded_commands == 1
 
 
 async def test_close_releases_control_with_config_zero(pair: tuple[MkLink, FakeFc]) -> None:

@@ -64,7 +64,7 @@ async def test_commands_that_take_control_are_refused_after_release(
 async def test_close_wins_over_a_task_still_sending_commands(
     pair: tuple[MkLink, FakeFc],
 ) -> None:
-    """The last ExternControl the FC sees after close() has Config = 0 (review S1)."""
+    """The last ExternControl the FC sees after close() has Config = 0."""
     link, fc = pair
     await link.connect()
 
@@ -87,7 +87,7 @@ async def test_close_wins_over_a_task_still_sending_commands(
 
 
 async def test_stale_data_with_control_taken_releases_and_stops_renewing() -> None:
-    """An FC whose TX died but RX works must not hold the last command (review S2)."""
+    """An FC whose TX died but RX works must not hold the last command."""
     settings = STALE_SETTINGS
     link, fc, task = await _streaming_link(settings)
     link.send_extern_control(ExternControl(nick=30, gas=110, config=1))
@@ -144,7 +144,7 @@ async def test_no_blind_command_without_control() -> None:
 
 
 async def test_reader_crash_still_releases_and_closes(pair: tuple[MkLink, FakeFc]) -> None:
-    """A bug in the reader must not leave the FC under extern control (review S3)."""
+    """A bug in the reader must not leave the FC under extern control."""
     link, fc = pair
     await link.connect()
     link.send_extern_control(ExternControl(gas=100, config=1))

@@ -55,15 +55,11 @@ def test_all_healthy_is_none() -> None:
     assert out.causes == ()
     assert out.events == ()
     assert not out.use_last_command
-    assert not out.resubscribe_mk
 
 
 # Rows with a fixed action: (inputs, cause, action).
 FIXED_ROWS = [
     ({"values_finite": False}, Cause.NONFINITE, A.WARN),
-    ({"mk_age_s": 0.25}, Cause.MK_STALE, A.WARN),
-    ({"mk_age_s": 1.5}, Cause.MK_LOST, A.RELEASE),
-    ({"mk_age_s": math.nan}, Cause.MK_LOST, A.RELEASE),
     ({"stop": StopRequest.SIGINT}, Cause.STOP_SIGINT, A.LAND),
     ({"stop": StopRequest.SIGTERM}, Cause.STOP_SIGTERM, A.LAND),
     ({"stop": StopRequest.DURATION}, Cause.STOP_DURATION, A.LAND),
@@ -149,26 +145,6 @@ def test_nonfinite_must_be_consecutive() -> None:
     assert out.nonfinite_steps == 0
 
 
-def test_mk_stale_asks_to_resubscribe_then_releases() -> None:
-    r = Run()
-    out = r.step(mk_age_s=0.25)
-    assert out.resubscribe_mk
-    assert out.action is A.WARN
-    out = r.step(mk_age_s=0.9)
-    assert out.resubscribe_mk
-    assert out.action is A.WARN
-    out = r.step(mk_age_s=1.01)
-    assert out.action is A.RELEASE
-    assert not r.step(mk_age_s=0.05).resubscribe_mk
-    assert r.step().action is A.RELEASE
-
-
-def test_mk_back_in_time_does_not_release() -> None:
-    r = Run()
-    r.step(mk_age_s=0.5)
-    assert r.steps(100, mk_age_s=0.05).action is A.WARN
-
-
 def test_battery_is_sag_filtered_then_latched() -> None:
     r = Run()
     r.steps(20, battery_v=12.0)
@@ -239,7 +215,6 @@ def test_nonfinite_position_skips_the_box_check() -> None:
                 "values_finite": st.booleans(),
                 "laser_age_s": st.floats(allow_nan=True, allow_infinity=True),
                 "scan_degenerate": st.booleans(),
-                "mk_age_s": st.floats(allow_nan=True, allow_infinity=True),
                 "x_m": st.floats(allow_nan=True, allow_infinity=True),
                 "y_m": st.floats(allow_nan=True, allow_infinity=True),
                 "height_m": st.floats(allow_nan=True, allow_infinity=True),
