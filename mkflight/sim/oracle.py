@@ -1,4 +1,4 @@
-"""The oracle: an airframe flown by a PID on its TRUE state, with gains searched (issue 17).
+"""The oracle: an airframe flown by a PID on its TRUE state, with gains searched.
 
 What the physics allows. The flight is judged against this: the same airframe (its
 :class:`~mkflight.sim.vehicle.VehicleParams`), the same gusts (the same ``gust_seed``, so
@@ -39,7 +39,14 @@ from typing import Final
 import numpy as np
 
 from mkflight.frames import wrap_pi
-from mkflight.sim.vehicle import Sticks, VehicleParams, initial_state, step
+from mkflight.sim.vehicle import (
+    Sticks,
+    Vec3,
+    VehicleParams,
+    VehicleState,
+    initial_state,
+    step,
+)
 
 PERIOD_S: Final = 52 * 1.024e-3  # the FC's DebugOut period (mk-serial.md §7.2)
 MAX_SPEED_MPS: Final = 0.5  # velocity set-point norm (the flight's control.max_speed_mps)
@@ -56,7 +63,9 @@ MIN_SETTLE_S: Final = 3.0  # never judge the first seconds in the air
 DEFAULT_SETTLE_S: Final = 5.0
 DEFAULT_HEIGHT_M: Final = 0.6
 DEFAULT_EVALUATIONS: Final = 40
-NOMINAL_RESPONSE_S: Final = 0.2  # delay + lag the control defaults were tuned on (seed §F)
+#: Delay + lag the control defaults were tuned on (§F of the 2011 QUT CyPhy MikroKopter
+#: documentation: the MK's ~200 ms attitude response).
+NOMINAL_RESPONSE_S: Final = 0.2
 
 
 @dataclass(frozen=True, slots=True)
@@ -160,6 +169,90 @@ def _stick(value: float, limit: int) -> float:
     return float(min(max(round(value), -limit), limit))
 
 
+class _TruthPilot:
+    """The oracle's controller: sticks from the TRUE state, one call per DebugOut period.
+
+    Horizontal: the flight's cascade (module docstring) with ``gains``; yaw held at 0 by a
+    rate stick; height by PD + I around the airframe's true hover gas. Keeps the
+    integrators and the last velocity (the derivative is on the measurement).
+    """
+
+    def __init__(
+        self, params: VehicleParams, gains: OracleGains, height_m: float, vel_w_mps: Vec3
+    ) -> None:
+        """A pilot holding (0, 0, ``height_m``), integrators at 0, last velocity ``vel_w_mps``."""
+        self.params = params
+        self.gains = gains.as_tuple()
+        self.height_m = height_m
+        self.a_max_mps2 = params.g_mps2 * MAX_TILT_RAD
+        self.ix = self.iy = self.ivx = self.ivy = self.iz = 0.0
+        self.prev_vx, self.prev_vy = vel_w_mps[0], vel_w_mps[1]
+
+    def sticks(self, state: VehicleState) -> Sticks:
+        """The sticks for the next period, in the airframe's TRUE counts and signs."""
+        p = self.params
+        axw, ayw = self._world_acceleration(state)
+        pitch, roll = _tilt_rad(axw, ayw, state.yaw_rad, p.g_mps2)
+        yaw_counts_per_radps = 1.0 / (p.yaw_sign * p.yaw_rate_radps_per_count)
+        yaw_counts = _stick(
+            YAW_GAIN_PER_S * wrap_pi(-state.yaw_rad) * yaw_counts_per_radps, YAW_MAX_COUNTS
+        )
+        return Sticks(
+            nick_counts=_stick(pitch * (p.counts_per_rad * p.nick_sign), MAX_COUNTS),
+            roll_counts=_stick(roll * (p.counts_per_rad * p.roll_sign), MAX_COUNTS),
+            yaw_counts=yaw_counts,
+            gas_counts=float(self._gas_counts(state)),
+        )
+
+    def _world_acceleration(self, state: VehicleState) -> tuple[float, float]:
+        """Position P + I -> velocity set-point -> velocity PID: the world acceleration."""
+        kp, ki, kpv, kiv, kdv = self.gains
+        x, y, _ = state.pos_w_m
+        vx, vy, _ = state.vel_w_mps
+        dt = PERIOD_S
+        # position P + I -> velocity set-point (norm-limited, integral clamped to it)
+        i_max = MAX_SPEED_MPS / max(ki, 1e-9)
+        self.ix = min(max(self.ix - x * dt, -i_max), i_max)
+        self.iy = min(max(self.iy - y * dt, -i_max), i_max)
+        vsx, vsy = -kp * x + ki * self.ix, -kp * y + ki * self.iy
+        speed = math.hypot(vsx, vsy)
+        if speed > MAX_SPEED_MPS:
+            vsx, vsy = vsx * MAX_SPEED_MPS / speed, vsy * MAX_SPEED_MPS / speed
+        # velocity PID (derivative on the measurement) -> world acceleration
+        a_max = self.a_max_mps2
+        ilim = a_max / max(kiv, 1e-9)
+        self.ivx = min(max(self.ivx + (vsx - vx) * dt, -ilim), ilim)
+        self.ivy = min(max(self.ivy + (vsy - vy) * dt, -ilim), ilim)
+        axw = kpv * (vsx - vx) + kiv * self.ivx - kdv * (vx - self.prev_vx) / dt
+        ayw = kpv * (vsy - vy) + kiv * self.ivy - kdv * (vy - self.prev_vy) / dt
+        self.prev_vx, self.prev_vy = vx, vy
+        return min(max(axw, -a_max), a_max), min(max(ayw, -a_max), a_max)
+
+    def _gas_counts(self, state: VehicleState) -> float:
+        """Height by PD + I around the true hover gas at the true battery, over the tilt."""
+        p = self.params
+        z, vz = state.pos_w_m[2], state.vel_w_mps[2]
+        err_z = self.height_m + z  # z is down: height = -z
+        iz_limit = HEIGHT_I_LIMIT_MPS2 / HEIGHT_KI_PER_S3  # the integral term within ±2 m/s²
+        self.iz = min(max(self.iz + err_z * PERIOD_S, -iz_limit), iz_limit)
+        acc_up = HEIGHT_KP_PER_S2 * err_z + HEIGHT_KI_PER_S3 * self.iz + HEIGHT_KD_PER_S * vz
+        volts = max(state.battery_v, 0.5 * p.hover_voltage_v)
+        hover = p.hover_gas_counts * (p.hover_voltage_v / volts) ** 2
+        tilt_cos = max(math.cos(state.pitch_rad) * math.cos(state.roll_rad), 0.5)
+        return min(max(round(hover * (1.0 + acc_up / p.g_mps2) / tilt_cos), 0.0), GAS_MAX_COUNTS)
+
+
+def _tilt_rad(axw: float, ayw: float, yaw_rad: float, g_mps2: float) -> tuple[float, float]:
+    """``(pitch, roll)`` for a world acceleration: heading frame (SPEC §1), norm clamp."""
+    cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
+    abx, aby = cy * axw + sy * ayw, -sy * axw + cy * ayw
+    pitch, roll = -abx / g_mps2, aby / g_mps2
+    tilt = math.hypot(pitch, roll)
+    if tilt > MAX_TILT_RAD:
+        return pitch * MAX_TILT_RAD / tilt, roll * MAX_TILT_RAD / tilt
+    return pitch, roll
+
+
 def fly_oracle(
     params: VehicleParams,
     gains: OracleGains,
@@ -197,68 +290,19 @@ def fly_oracle(
         raise ValueError(msg)
     rng = np.random.default_rng(seed)
     state = initial_state(params, rng, pos_w_m=(0.0, 0.0, -height_m), gust_seed=gust_seed)
-    g = params.g_mps2
-    kp, ki, kpv, kiv, kdv = gains.as_tuple()
-    a_max = g * MAX_TILT_RAD
-    to_counts_pitch = params.counts_per_rad * params.nick_sign  # counts = angle * this
-    to_counts_roll = params.counts_per_rad * params.roll_sign
-    yaw_counts_per_radps = 1.0 / (params.yaw_sign * params.yaw_rate_radps_per_count)
-    ix = iy = ivx = ivy = iz = 0.0
-    iz_limit = HEIGHT_I_LIMIT_MPS2 / HEIGHT_KI_PER_S3  # the integral term within ±2 m/s²
-    prev_vx, prev_vy = state.vel_w_mps[0], state.vel_w_mps[1]
+    pilot = _TruthPilot(params, gains, height_m, state.vel_w_mps)
     start_n = math.ceil(settle_s / PERIOD_S - 1e-9)
     end_n = start_n + round(hold_s / PERIOD_S)
     ex: list[float] = []
     ey: list[float] = []
     ez: list[float] = []
-    dt = PERIOD_S
     for n in range(end_n):
-        x, y, z = state.pos_w_m
-        vx, vy, vz = state.vel_w_mps
         if n >= start_n:
+            x, y, z = state.pos_w_m
             ex.append(x)
             ey.append(y)
             ez.append(-z - height_m)
-        # position P + I -> velocity set-point (norm-limited, integral clamped to it)
-        ix = min(max(ix - x * dt, -MAX_SPEED_MPS / max(ki, 1e-9)), MAX_SPEED_MPS / max(ki, 1e-9))
-        iy = min(max(iy - y * dt, -MAX_SPEED_MPS / max(ki, 1e-9)), MAX_SPEED_MPS / max(ki, 1e-9))
-        vsx, vsy = -kp * x + ki * ix, -kp * y + ki * iy
-        speed = math.hypot(vsx, vsy)
-        if speed > MAX_SPEED_MPS:
-            vsx, vsy = vsx * MAX_SPEED_MPS / speed, vsy * MAX_SPEED_MPS / speed
-        # velocity PID (derivative on the measurement) -> world acceleration
-        ilim = a_max / max(kiv, 1e-9)
-        ivx = min(max(ivx + (vsx - vx) * dt, -ilim), ilim)
-        ivy = min(max(ivy + (vsy - vy) * dt, -ilim), ilim)
-        axw = kpv * (vsx - vx) + kiv * ivx - kdv * (vx - prev_vx) / dt
-        ayw = kpv * (vsy - vy) + kiv * ivy - kdv * (vy - prev_vy) / dt
-        prev_vx, prev_vy = vx, vy
-        axw, ayw = min(max(axw, -a_max), a_max), min(max(ayw, -a_max), a_max)
-        # world -> heading frame (SPEC §1), tilt, norm clamp, true counts per radian
-        cy, sy = math.cos(state.yaw_rad), math.sin(state.yaw_rad)
-        abx, aby = cy * axw + sy * ayw, -sy * axw + cy * ayw
-        pitch, roll = -abx / g, aby / g
-        tilt = math.hypot(pitch, roll)
-        if tilt > MAX_TILT_RAD:
-            pitch, roll = pitch * MAX_TILT_RAD / tilt, roll * MAX_TILT_RAD / tilt
-        # yaw held at 0 (a rate stick), height by PD + I around the true hover gas
-        yaw_counts = _stick(
-            YAW_GAIN_PER_S * wrap_pi(-state.yaw_rad) * yaw_counts_per_radps, YAW_MAX_COUNTS
-        )
-        err_z = height_m + z  # z is down: height = -z
-        iz = min(max(iz + err_z * dt, -iz_limit), iz_limit)
-        acc_up = HEIGHT_KP_PER_S2 * err_z + HEIGHT_KI_PER_S3 * iz + HEIGHT_KD_PER_S * vz
-        volts = max(state.battery_v, 0.5 * params.hover_voltage_v)
-        hover = params.hover_gas_counts * (params.hover_voltage_v / volts) ** 2
-        tilt_cos = max(math.cos(state.pitch_rad) * math.cos(state.roll_rad), 0.5)
-        gas = min(max(round(hover * (1.0 + acc_up / g) / tilt_cos), 0.0), GAS_MAX_COUNTS)
-        sticks = Sticks(
-            nick_counts=_stick(pitch * to_counts_pitch, MAX_COUNTS),
-            roll_counts=_stick(roll * to_counts_roll, MAX_COUNTS),
-            yaw_counts=yaw_counts,
-            gas_counts=float(gas),
-        )
-        state = step(state, sticks, dt, params, rng)
+        state = step(state, pilot.sticks(state), PERIOD_S, params, rng)
     return OracleFlight(gains, _std(ex), _std(ey), _std(ez), len(ex))
 
 
@@ -271,7 +315,7 @@ def _std(values: list[float]) -> float:
 def guess_bandwidth(params: VehicleParams) -> float:
     """A starting scale of :data:`BASE_GAINS` for this airframe: nominal response / its own.
 
-    The defaults suit a 0.1 s delay + 0.1 s lag (seed §F); a loop around a slower response
+    The defaults suit a 0.1 s delay + 0.1 s lag (§F); a loop around a slower response
     must be slower by about the same factor (a delay's phase lag grows with frequency).
     """
     response_s = params.attitude_delay_s + params.attitude_tau_s
