@@ -27,7 +27,7 @@ import msgspec
 
 from mkflight.config import Config, apply_override, config_from_dict, parse_override
 from mkflight.errors import ConfigError, ReplayError
-from mkflight.flight.app import FlightOptions
+from mkflight.flight.app import FlightOptions, FlightReport
 from mkflight.logs.flight import extern_control_frames
 from mkflight.logs.raw import read_raw
 from mkflight.replay.compare import compare_commands
@@ -126,33 +126,58 @@ def replay_flight(
         on_progress=None if on_progress is None else (lambda n: on_progress(n, feeder.total)),
         memory=speed is None and not ptys,
     )
-    opts = FlightOptions(
-        mk_port=feeder.path("mk"),
-        laser_port=feeder.path("laser"),
-        log_dir=out,
-        durable_logs=False,
-    )
-    app = ReplayApp(
-        cfg,
-        opts,
-        clock=clock,
-        feeder=feeder,
-        scans=rec.scans,
-        use_recorded_poses=use_recorded,
-        ready_ns=rec.ready_ns,
-        subscribe_ns=rec.subscribe_ns,
-        step_stops=rec.step_stops,
-        intact_end_ns=rec.intact_end_ns,
-    )
+    app = _replay_app(cfg, rec, out, feeder, clock, use_recorded_poses=use_recorded)
     feeder.set_stop(app.request_stop)
     cpu0, wall0 = time.process_time(), time.perf_counter()
     report = run_lockstep(app, feeder, clock, link_dir)
     wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
     if on_progress is not None:
         on_progress(feeder.total, feeder.total)
+    return _report(
+        rec,
+        out,
+        app,
+        feeder,
+        report,
+        overrides=overrides,
+        rematch=not use_recorded,
+        wall_s=wall_s,
+        cpu_s=cpu_s,
+    )
 
-    original = extern_control_frames(rec.recordings["mk"])
-    replayed = extern_control_frames(read_raw(out / "mk.raw")) if (out / "mk.raw").exists() else []
+
+def _replay_app(
+    cfg: Config,
+    rec: RecordedFlight,
+    out: Path,
+    feeder: Feeder,
+    clock: VirtualClock,
+    *,
+    use_recorded_poses: bool,
+) -> ReplayApp:
+    """The daemon on the feeder's ports, writing into ``out``, held to the recording's timing."""
+    opts = FlightOptions(
+        mk_port=feeder.path("mk"),
+        laser_port=feeder.path("laser"),
+        log_dir=out,
+        durable_logs=False,
+    )
+    return ReplayApp(
+        cfg,
+        opts,
+        clock=clock,
+        feeder=feeder,
+        scans=rec.scans,
+        use_recorded_poses=use_recorded_poses,
+        ready_ns=rec.ready_ns,
+        subscribe_ns=rec.subscribe_ns,
+        step_stops=rec.step_stops,
+        intact_end_ns=rec.intact_end_ns,
+    )
+
+
+def _warnings(rec: RecordedFlight, feeder: Feeder) -> list[str]:
+    """What limits the comparison: the recording's own warnings, then the feed's."""
     warnings = list(rec.warnings)
     if not rec.completed:
         warnings.append(
@@ -172,6 +197,25 @@ def replay_flight(
             f"{feeder.stats.dropped} recorded chunks came after the replayed daemon had "
             f"closed the port; {feeder.stats.never_read_bytes} bytes were never read"
         )
+    return warnings
+
+
+def _report(
+    rec: RecordedFlight,
+    out: Path,
+    app: ReplayApp,
+    feeder: Feeder,
+    report: FlightReport,
+    *,
+    overrides: list[str],
+    rematch: bool,
+    wall_s: float,
+    cpu_s: float,
+) -> ReplayReport:
+    """Compare what the replay sent and wrote with the recording, up to where both are whole."""
+    original = extern_control_frames(rec.recordings["mk"])
+    replayed = extern_control_frames(read_raw(out / "mk.raw")) if (out / "mk.raw").exists() else []
+    warnings = _warnings(rec, feeder)
     end_ns = None if rec.completed else rec.end_ns
     upto: dict[str, int] | None = None
     if rec.intact_end_ns is not None:
@@ -184,7 +228,7 @@ def replay_flight(
         commands=compare_commands(original, replayed, end_ns=end_ns),
         tables=compare_tables(rec.folder, out, warnings, upto),
         overrides=overrides,
-        rematch=not use_recorded,
+        rematch=rematch,
         recorded_s=rec.duration_s,
         wall_s=wall_s,
         cpu_s=cpu_s,

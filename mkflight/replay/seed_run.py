@@ -1,4 +1,10 @@
-"""Replaying a folder of the seed's two tables: the run (its models: ``replay.seed``)."""
+"""Replaying a folder of the original system's two tables alone: the run.
+
+A folder with TABLE III and TABLE IV of the 2011 QUT CyPhy MikroKopter documentation's
+format and no raw recording is played through the device models of
+:mod:`mkflight.replay.seed`: this module puts the run together and sets the replay's own
+tables beside the original ones.
+"""
 
 from __future__ import annotations
 
@@ -8,8 +14,9 @@ from pathlib import Path
 
 import msgspec
 import numpy as np
+import numpy.typing as npt
 
-from mkflight.config import load_config
+from mkflight.config import Config, load_config
 from mkflight.control.phases import Phase
 from mkflight.errors import ReplayError
 from mkflight.flight.app import FlightOptions
@@ -37,7 +44,7 @@ from mkflight.replay.session import out_dir_for, run_lockstep
 from mkflight.replay.vloop import VirtualClock
 from mkflight.safety.failsafe import StopRequest
 
-SEED_START_NS = 1_000 * 1_000_000_000  # a seed replay's lock-step clock starts here (any)
+SEED_START_NS = 1_000 * 1_000_000_000  # the lock-step clock of such a replay starts here (any)
 #: The tables start at take-off; a daemon still on the ground this long after the start
 #: never takes off (e.g. TABLE III's first pose is NaN or far outside the room: no valid
 #: fix), and the replay, which would otherwise run on forever, ends (one normally takes
@@ -46,7 +53,7 @@ TAKEOFF_TIMEOUT_NS = 30 * 1_000_000_000
 
 
 def is_seed_folder(folder: Path) -> bool:
-    """The seed's two tables and no raw recording at all (one of two missing: damaged)."""
+    """The two tables and no raw recording at all (one of two missing: damaged)."""
     return (
         folder.is_dir()
         and not (folder / "mk.raw").exists()
@@ -64,7 +71,7 @@ def _seed_comparison(
     first_step: int | None,
     rows_used: dict[int, int],
 ) -> SeedComparison:
-    """Pair the replay's rows with the seed rows they came from; compare the columns."""
+    """Pair the replay's rows with the original rows they came from; compare the columns."""
     imu_ours = read_table4(out / "imu_50ms.log").rows if (out / "imu_50ms.log").exists() else None
     imu_cmp: list[ColumnComparison] = []
     if imu_ours is not None and first_step is not None:
@@ -91,6 +98,76 @@ def _seed_comparison(
     return SeedComparison(rows_played, len(imu_seed), len(laser_seed), imu_cmp, laser_cmp)
 
 
+class _TakeoffWatch:
+    """Starts the tables' clock at the replayed daemon's take-off and stops the replay.
+
+    It stops a daemon still on the ground :data:`TAKEOFF_TIMEOUT_NS` after the start, and
+    one whose TABLE IV ran out (:class:`~mkflight.replay.seed.SeedFc`'s ``on_end``).
+    """
+
+    def __init__(self, clock: VirtualClock, tables: SeedClock) -> None:
+        self.clock = clock
+        self.tables = tables
+        self.app: ReplayApp | None = None
+        self.first_step: int | None = None  # the daemon's first step at take-off (1-based)
+
+    def watch(self, app: ReplayApp) -> None:
+        """Watch ``app``'s steps from now on."""
+        self.app = app
+        app.on_step = self.on_step
+
+    def on_end(self, t_ns: int) -> None:
+        """TABLE IV ran out: land and release, as ``--duration`` would."""
+        if self.app is not None:
+            self.app.request_stop(StopRequest.DURATION, "the original system's TABLE IV ended")
+
+    def on_step(self, out: ImuStepOutput) -> None:
+        """After each step: start the tables' clock at take-off, or give up waiting for it."""
+        app = self.app
+        if app is None:
+            return
+        if self.tables.start_ns is None and out.phase is Phase.TAKEOFF:
+            self.tables.start_ns = self.clock.now_ns()
+            self.first_step = app.core.counters.imu_steps + 1
+        elif (
+            self.tables.start_ns is None
+            and app.stop_request is None
+            and self.clock.now_ns() > SEED_START_NS + TAKEOFF_TIMEOUT_NS
+        ):
+            app.request_stop(
+                StopRequest.DURATION, f"no take-off in {TAKEOFF_TIMEOUT_NS // 1_000_000_000} s"
+            )
+
+
+def _read_tables(folder: Path) -> tuple[npt.NDArray[np.void], npt.NDArray[np.void], list[str]]:
+    """TABLE IV and TABLE III rows of ``folder`` and the warnings reading them.
+
+    Raises:
+        ReplayError: a table cannot be read (file and line named) or is empty.
+    """
+    imu_data = read_table4(folder / "imu_50ms.log")
+    laser_data = read_table3(folder / "laser_100ms.log")
+    warnings = [
+        f"{d.path}: last line cut short: dropped" for d in (imu_data, laser_data) if d.truncated
+    ]
+    for d in (imu_data, laser_data):
+        if len(d.rows) == 0:
+            msg = f"{d.path}: no rows to replay"
+            raise ReplayError(msg)
+    return imu_data.rows, laser_data.rows, warnings
+
+
+def _seed_app(cfg: Config, feeder: Feeder, clock: VirtualClock, out: Path) -> ReplayApp:
+    """The daemon on the feeder's model ports, its scan matcher to be replaced."""
+    opts = FlightOptions(
+        mk_port=feeder.path("mk"),
+        laser_port=feeder.path("laser"),
+        log_dir=out,
+        durable_logs=False,
+    )
+    return ReplayApp(cfg, opts, clock=clock, feeder=feeder, scans={}, use_recorded_poses=False)
+
+
 def replay_seed(
     source: str | Path,
     out_dir: str | Path | None = None,
@@ -98,10 +175,10 @@ def replay_seed(
     overrides: list[str] | None = None,
     speed: float | None = None,
 ) -> ReplayReport:
-    """Replay a folder of the seed's two tables (:mod:`mkflight.replay.seed`).
+    """Replay a folder of the original system's two tables (:mod:`mkflight.replay.seed`).
 
-    The configuration is the built-in one with ``--set`` on top (the seed's tables do
-    not say which was flown).
+    The configuration is the built-in one with ``--set`` on top (the tables do not say
+    which was flown).
 
     Raises:
         ReplayError: a table cannot be read (file and line named) or is empty.
@@ -109,16 +186,7 @@ def replay_seed(
     """
     folder = Path(source)
     overrides = list(overrides or [])
-    imu_data = read_table4(folder / "imu_50ms.log")
-    laser_data = read_table3(folder / "laser_100ms.log")
-    warnings = [
-        f"{d.path}: last line cut short: dropped" for d in (imu_data, laser_data) if d.truncated
-    ]
-    imu_seed, laser_seed = imu_data.rows, laser_data.rows
-    for d, rows in ((imu_data, imu_seed), (laser_data, laser_seed)):
-        if len(rows) == 0:
-            msg = f"{d.path}: no rows to replay"
-            raise ReplayError(msg)
+    imu_seed, laser_seed, warnings = _read_tables(folder)
     cfg = load_config(None, overrides)
     cfg = msgspec.structs.replace(
         cfg, scanmatch=msgspec.structs.replace(cfg.scanmatch, worker="inline")
@@ -127,43 +195,16 @@ def replay_seed(
     clock = VirtualClock(SEED_START_NS)
     seed_clock = SeedClock(len(imu_seed), len(laser_seed))
     link_dir = Path(tempfile.mkdtemp(prefix="mkflight-replay-"))
-    app_ref: list[ReplayApp] = []
-
-    def on_end(t_ns: int) -> None:
-        if app_ref:
-            app_ref[0].request_stop(StopRequest.DURATION, "the seed's TABLE IV ended")
-
-    fc = SeedFc(cfg, imu_seed, seed_clock, t_ns=SEED_START_NS, on_end=on_end)
+    watch = _TakeoffWatch(clock, seed_clock)
+    fc = SeedFc(cfg, imu_seed, seed_clock, t_ns=SEED_START_NS, on_end=watch.on_end)
     urg = seed_urg(cfg, laser_seed, seed_clock, SEED_START_NS)
     feeder = Feeder(
         [], clock, link_dir, speed=speed, models={"mk": fc, "laser": urg}, memory=speed is None
     )
-    opts = FlightOptions(
-        mk_port=feeder.path("mk"),
-        laser_port=feeder.path("laser"),
-        log_dir=out,
-        durable_logs=False,
-    )
-    app = ReplayApp(cfg, opts, clock=clock, feeder=feeder, scans={}, use_recorded_poses=False)
+    app = _seed_app(cfg, feeder, clock, out)
     matcher = SeedMatcher(cfg, laser_seed, seed_clock)
     app.worker = matcher
-    app_ref.append(app)
-    first_step: list[int] = []
-
-    def on_step(out_: ImuStepOutput) -> None:
-        if seed_clock.start_ns is None and out_.phase is Phase.TAKEOFF:
-            seed_clock.start_ns = clock.now_ns()
-            first_step.append(app.core.counters.imu_steps + 1)
-        elif (
-            seed_clock.start_ns is None
-            and app.stop_request is None
-            and clock.now_ns() > SEED_START_NS + TAKEOFF_TIMEOUT_NS
-        ):
-            app.request_stop(
-                StopRequest.DURATION, f"no take-off in {TAKEOFF_TIMEOUT_NS // 1_000_000_000} s"
-            )
-
-    app.on_step = on_step
+    watch.watch(app)
     cpu0, wall0 = time.process_time(), time.perf_counter()
     report = run_lockstep(app, feeder, clock, link_dir)
     wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
@@ -198,7 +239,7 @@ def replay_seed(
             imu_seed,
             laser_seed,
             fc.rows_sent,
-            first_step[0] if first_step else None,
+            watch.first_step,
             matcher.rows_used,
         ),
     )

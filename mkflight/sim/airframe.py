@@ -11,13 +11,14 @@ of a flight:
   effect, a late USB laser. The flight is judged on many of these (``mkflight sim
   envelope``), never on the airframe its gains were tuned on.
 
-The envelope (issue 17's ranges, at least; units in the names):
+The envelope (units in the names; § alone: a section of the 2011 QUT CyPhy MikroKopter
+documentation):
 
 ====================================  ===============  ======================================
 constant                              range            what it models
 ====================================  ===============  ======================================
 ``attitude_delay_s``                  0.06 .. 0.18     the FC's attitude response: pure delay
-``attitude_tau_s``                    0.06 .. 0.22     ... and first-order lag (seed §F)
+``attitude_tau_s``                    0.06 .. 0.22     ... and first-order lag (§F)
 ``counts_per_rad``                    100 .. 140       the FC's stick counts per radian
 ``yaw_rate_radps_per_count``          0.015 .. 0.025   the yaw stick's rate
 ``hover_gas_counts``                  82 .. 115        gas holding the weight at take-off
@@ -96,7 +97,7 @@ ENVELOPE: Final[dict[str, Range]] = {
     "debug_late_fraction": Range(0.0, 0.02, "... and this share 5-25 ms late"),
 }
 GUST_TAU_S: Final = 0.3
-"""The turbulence's correlation time (s). The issue gives its strength only; over 50
+"""The turbulence's correlation time (s), not a range of the envelope: over 50
 airframes an oracle's std peaks near 0.15-0.3 s (0.0076-0.0078 m median), so 0.3 s is the
 hardest case for a position loop (1 s: 0.0059 m)."""
 ACC_SCALE_ERROR_XY: Final = 0.02

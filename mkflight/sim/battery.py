@@ -1,7 +1,8 @@
-"""The simulated LiPo pack (seed §L, §M): open-circuit voltage by charge, current by thrust.
+"""The simulated LiPo pack (§L, §M): open-circuit voltage by charge, current by thrust.
 
-Each pack discharges differently (the seed's Fig. 26); this is a generic 1C curve. The
-terminal voltage the FC reads is ``open_circuit_v - I R`` (see :mod:`mkflight.sim.vehicle`).
+§ and Fig. are those of the 2011 QUT CyPhy MikroKopter documentation. Each pack
+discharges differently (its Fig. 26); this is a generic 1C curve. The terminal voltage the
+FC reads is ``open_circuit_v - I R`` (see :mod:`mkflight.sim.vehicle`).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ if TYPE_CHECKING:
     from mkflight.sim.vehicle_types import VehicleParams
 
 #: Per-cell LiPo open-circuit voltage vs state of charge (a generic 1C discharge curve;
-#: the seed's Fig. 26 shows each pack differs). (state of charge, volts per cell).
+#: Fig. 26 shows each pack differs). (state of charge, volts per cell).
 LIPO_OCV_V: tuple[tuple[float, float], ...] = tuple(
     zip(
         (0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0),
@@ -27,7 +28,7 @@ _OCV = tuple(p[1] for p in LIPO_OCV_V)
 
 
 def open_circuit_v(used_ah: float, params: VehicleParams) -> float:
-    """Pack open-circuit voltage after ``used_ah`` (seed §M; :data:`LIPO_OCV_V`)."""
+    """Pack open-circuit voltage after ``used_ah`` (§M; :data:`LIPO_OCV_V`)."""
     soc = min(max(1.0 - used_ah / params.battery_capacity_ah, 0.0), 1.0)
     i = min(max(bisect.bisect_right(_SOC, soc) - 1, 0), len(_SOC) - 2)
     frac = (soc - _SOC[i]) / (_SOC[i + 1] - _SOC[i])
@@ -35,7 +36,7 @@ def open_circuit_v(used_ah: float, params: VehicleParams) -> float:
 
 
 def current_a(thrust_n: float, battery_v: float, params: VehicleParams) -> float:
-    """Pack current: avionics + motors, ``(T/W)^1.5`` at constant power (seed §L)."""
+    """Pack current: avionics + motors, ``(T/W)^1.5`` at constant power (§L)."""
     ratio = max(thrust_n, 0.0) / (params.mass_kg * params.g_mps2)
     volts = max(battery_v, 0.1 * params.hover_voltage_v)
     motors = params.hover_current_a * ratio * math.sqrt(ratio) * params.hover_voltage_v / volts

@@ -1,4 +1,4 @@
-"""``mkflight sim envelope``: the flight judged on many random airframes (issue 17).
+"""``mkflight sim envelope``: the flight judged on many random airframes.
 
 For airframe ``i`` of ``n`` (airframe seed ``seed + i``: ``sim.airframe=random``,
 ``sim.seed=seed + i``; the flights' noise and gusts are seeded with it too), in parallel

@@ -1,8 +1,8 @@
-"""The envelope's verdicts and reports: criteria, pass rates, worst airframes, tables (issue 17).
+"""The envelope's verdicts and reports: criteria, pass rates, worst airframes, tables.
 
 Pure: :class:`~mkflight.sim.envelope.AirframeRun` values in, verdicts and text out.
 
-The criteria (issue 17, "What it must show"; :class:`Criteria`):
+The criteria, what the flight must show on random airframes (:class:`Criteria`):
 
 * **precision** (the defaults flight, the airframe's first flight): std x <= max(0.03 m,
   1.25 x the oracle's std x), the same for y against the oracle's y (the same gusts on
@@ -48,7 +48,7 @@ KEY_PARAMETERS: Final = (
 
 @dataclass(frozen=True, slots=True)
 class Criteria:
-    """The issue's thresholds (m, m/s, shares)."""
+    """The envelope's thresholds (m, m/s, shares; the module docstring)."""
 
     floor_m: float = 0.03
     oracle_factor: float = 1.25
@@ -64,7 +64,7 @@ class Criteria:
         return max(self.floor_m, self.oracle_factor * oracle_m)
 
 
-CRITERIA: Final = Criteria()  # the issue's
+CRITERIA: Final = Criteria()  # the module docstring's
 
 
 @dataclass(frozen=True, slots=True)
@@ -80,7 +80,7 @@ class Verdict:
 
     @property
     def passed(self) -> bool:
-        """The issue's three criteria and the tuned one."""
+        """Precision, touchdowns, stall landed, and the tuned flight's criterion."""
         return self.precision and self.touchdowns and self.stall_landed and self.tuned
 
 
@@ -185,7 +185,7 @@ def judge_run(run: AirframeRun, criteria: Criteria = Criteria()) -> Verdict:
 
 @dataclass(frozen=True, slots=True)
 class Summary:
-    """The envelope's pass rates and whether the issue's criteria hold."""
+    """The envelope's pass rates and whether its criteria hold."""
 
     n: int
     precision_pass: int

@@ -1,4 +1,4 @@
-"""The envelope's human reports: the text report and the README's markdown table (issue 17)."""
+"""The envelope's human reports: the text report and the README's markdown table."""
 
 from __future__ import annotations
 

@@ -26,13 +26,8 @@ It takes off to ``height_m`` (default ``control.takeoff_height_m``), holds the t
 x, y, ψ, lands after ``duration_s`` and releases. The precision is measured on the truth
 about the set-point during HOLD (from :data:`SETTLE_S` after it starts). The two tables
 (TABLE III/IV), ``events.jsonl``, ``flight.json`` (with the summary) and ``truth.txt``
-(:class:`~mkflight.sim.truth.TruthLog`: the airframe, rows, touchdowns) are written.
-
-How it ended (:attr:`HoverResult.end`, judged on the truth): ``landed`` (on the floor,
-≤ :data:`LANDED_M`, when control went back), ``released in the air`` (handed to the pilot
-above it: the run stops there, the pilot has it), ``ground`` (never above
-:data:`LANDED_M`), ``flying`` (still under our control when the time ran out). Every
-touchdown's downward speed is the truth of the landing's hardness (SPEC §8: ≤ 0.5 m/s).
+(:class:`~mkflight.sim.truth.TruthLog`: the airframe, rows, touchdowns) are written. How
+the flight ended is judged on the truth (:mod:`mkflight.sim.hover_result`).
 """
 
 from __future__ import annotations
@@ -47,14 +42,25 @@ import numpy as np
 
 from mkflight.clock import NS_PER_S
 from mkflight.config import Config
+from mkflight.control.controller import Setpoint
 from mkflight.control.phases import Phase, PhaseRequests
 from mkflight.flight.step import PilotSticks
 from mkflight.logs.flight_json import with_summary, write_flight_json
 from mkflight.mk.messages import DebugOut
 from mkflight.mk.units import imu_from_debug
+from mkflight.msgs import Command, ImuSample
 from mkflight.sim.airframe import airframe_from_config, describe
 from mkflight.sim.hover_excite import Excitation
 from mkflight.sim.hover_flight import FlightSide, HoverFaults, scan_from_raw
+from mkflight.sim.hover_result import (
+    END_FLYING,
+    END_GROUND,
+    END_LANDED,
+    END_RELEASED_IN_AIR,
+    LANDED_M,
+    HoverResult,
+    flight_end,
+)
 from mkflight.sim.lockstep import (
     IMU_PERIOD_NS,
     LASER_DELAY_NS,
@@ -63,113 +69,124 @@ from mkflight.sim.lockstep import (
     gust_seed_for,
 )
 from mkflight.sim.truth import TruthLog
-from mkflight.sim.vehicle import Sticks
+from mkflight.sim.vehicle import Sticks, VehicleState
 from mkflight.urg.driver import settings_from_config
 
 SETTLE_S: Final = 3.0  # precision counts from this long after HOLD begins
 LAND_MARGIN_S: Final = 5.0  # time allowed after the duration to land
-LANDED_M: Final = 0.05  # on the floor (truth height); above it when handed back: in the air
-
-END_LANDED: Final = "landed"
-END_RELEASED_IN_AIR: Final = "released in the air"
-END_GROUND: Final = "ground"
-END_FLYING: Final = "flying"
-
-
-@dataclass(slots=True)
-class HoverResult:
-    """What ``sim hover`` reports (SPEC §7, issue 6 and 17): precision, landing, airframe."""
-
-    std_x_m: float
-    std_y_m: float
-    std_z_m: float
-    rms_x_m: float
-    rms_y_m: float
-    rms_z_m: float
-    realtime_factor: float
-    log_dir: str
-    sim_s: float
-    wall_s: float
-    hold_s: float
-    end: str  # END_LANDED, END_RELEASED_IN_AIR, END_GROUND or END_FLYING
-    failsafes: list[str] = field(default_factory=list)
-    cpu_us_per_step: float = 0.0
-    max_height_m: float = 0.0
-    final_height_m: float = 0.0
-    released: bool = False  # control is the pilot's at the end (Config = 0)
-    touchdowns_mps: list[float] = field(default_factory=list)  # every touchdown (truth)
-    airframe: dict[str, float | int | bool | list[float]] = field(default_factory=dict)
-    airframe_kind: str = "nominal"  # sim.airframe
-    airframe_seed: int = 0  # sim.seed (what draws a random airframe)
-    learned: dict[str, object] = field(default_factory=dict)  # FlightCore.learned()
-    scans: bool = False  # the laser was ray-cast scans through the real pipeline
-
-    @property
-    def landed(self) -> bool:
-        """On the floor when control went back (never "released in the air")."""
-        return self.end == END_LANDED
-
-    @property
-    def touchdown_mps(self) -> float:
-        """The hardest touchdown's downward speed (truth), NaN if none."""
-        return max(self.touchdowns_mps) if self.touchdowns_mps else math.nan
-
-    def as_dict(self) -> dict[str, object]:
-        """The ``--json`` object and ``flight.json``'s summary (NaN as null)."""
-        hardest = self.touchdown_mps
-        return {
-            "std_x_m": _r(self.std_x_m, 5),
-            "std_y_m": _r(self.std_y_m, 5),
-            "std_z_m": _r(self.std_z_m, 5),
-            "rms_x_m": _r(self.rms_x_m, 5),
-            "rms_y_m": _r(self.rms_y_m, 5),
-            "rms_z_m": _r(self.rms_z_m, 5),
-            "realtime_factor": round(self.realtime_factor, 1),
-            "log_dir": self.log_dir,
-            "sim_s": round(self.sim_s, 3),
-            "hold_s": round(self.hold_s, 3),
-            "end": self.end,
-            "landed": self.landed,
-            "released": self.released,
-            "touchdowns_mps": [round(v, 3) for v in self.touchdowns_mps],
-            "touchdown_mps": _r(hardest, 3),
-            "failsafes": self.failsafes,
-            "cpu_us_per_step": round(self.cpu_us_per_step, 1),
-            "max_height_m": round(self.max_height_m, 3),
-            "final_height_m": round(self.final_height_m, 3),
-            "scans": self.scans,
-            "airframe_kind": self.airframe_kind,
-            "airframe_seed": self.airframe_seed,
-            "airframe": self.airframe,
-            "learned": self.learned,
-        }
-
-
-def _r(value: float, digits: int) -> float | None:
-    """``value`` rounded, or None (JSON null) when not finite."""
-    return round(value, digits) if math.isfinite(value) else None
-
-
-def flight_end(*, max_height_m: float, in_control: bool, handed_back_m: float | None) -> str:
-    """How a flight ended, from the truth (module docstring).
-
-    Args:
-        max_height_m: the highest the vehicle flew (truth).
-        in_control: the last command still takes control (Config bit 0).
-        handed_back_m: the truth height when control last went back, None if it never did.
-    """
-    if max_height_m <= LANDED_M:
-        return END_GROUND
-    if in_control or handed_back_m is None:
-        return END_FLYING
-    return END_LANDED if handed_back_m <= LANDED_M else END_RELEASED_IN_AIR
 
 
 def _stats(errors: list[float]) -> tuple[float, float]:
+    """``(std, rms)`` of the errors (m), NaN for none."""
     if not errors:
         return math.nan, math.nan
     a = np.asarray(errors)
     return float(np.std(a)), float(np.sqrt(np.mean(a * a)))
+
+
+@dataclass(slots=True)
+class _Tally:
+    """What a hover measures as it flies: the truth's error in HOLD, the hand-back, the steps."""
+
+    err_x: list[float] = field(default_factory=list)
+    err_y: list[float] = field(default_factory=list)
+    err_z: list[float] = field(default_factory=list)
+    hold_start_ns: int | None = None
+    hold_ns: int = 0  # the measured time: the DebugOut intervals of the counted steps
+    had_control: bool = False
+    handed_back_m: float | None = None  # truth height when control last went back
+    steps: int = 0
+
+    def hold(self, t_ns: int, dt_ns: int, end_ns: int, state: VehicleState, sp: Setpoint) -> None:
+        """A step in HOLD with a valid pose: counted from :data:`SETTLE_S` in, until ``end_ns``."""
+        self.hold_start_ns = t_ns if self.hold_start_ns is None else self.hold_start_ns
+        if t_ns - self.hold_start_ns >= SETTLE_S * NS_PER_S and t_ns < end_ns:
+            self.err_x.append(float(state.pos_w_m[0]) - sp.x_m)
+            self.err_y.append(float(state.pos_w_m[1]) - sp.y_m)
+            self.err_z.append(state.height_m - sp.height_m)
+            self.hold_ns += dt_ns
+
+    def released_in_air(self, take_control: bool, state: VehicleState) -> bool:
+        """Note who has control after a step; True when it just went back above :data:`LANDED_M`."""
+        if take_control:
+            self.had_control, self.handed_back_m = True, None
+            return False
+        if self.had_control and self.handed_back_m is None:
+            self.handed_back_m = state.height_m
+            return self.handed_back_m > LANDED_M
+        return False
+
+
+def _fc_sticks(command: Command, stick_gas: int) -> Sticks:
+    """What the FC flies: extern + neutral pilot sticks, the gas capped by the stick gas."""
+    if not command.take_control:
+        return Sticks()
+    return Sticks(
+        nick_counts=command.nick_counts,
+        roll_counts=command.roll_counts,
+        yaw_counts=command.yaw_counts,
+        gas_counts=min(stick_gas, command.gas_counts),
+    )
+
+
+def _debug_imu(
+    vehicle: LockstepVehicle, flight: FlightSide, t_ns: int, faults: HoverFaults
+) -> ImuSample:
+    """The FC's DebugOut at ``t_ns``, in its counts, decoded with the flight's calibration."""
+    debug = DebugOut.from_values(vehicle.debug_values())
+    imu = imu_from_debug(debug, t_ns, flight.cal)
+    if faults.imu is not None and faults.active(t_ns):
+        imu = faults.imu(imu)
+    flight.attitude.append((t_ns, imu.pitch_rad, imu.roll_rad))
+    return imu
+
+
+def _fly(
+    cfg: Config,
+    flight: FlightSide,
+    vehicle: LockstepVehicle,
+    tally: _Tally,
+    *,
+    duration_s: float,
+    faults: HoverFaults,
+    excitation: Excitation | None,
+) -> int:
+    """Step flight and vehicle in lock-step, DebugOut by DebugOut; the last step's time (ns).
+
+    Lands at ``duration_s``, stops :data:`LAND_MARGIN_S` later at the latest, or when
+    control goes back in the air or the phase is RELEASED.
+    """
+    core = flight.core
+    stick_gas = cfg.sim.fc.stick_gas
+    end_ns = int(duration_s * NS_PER_S)
+    stop_ns = end_ns + int(LAND_MARGIN_S * NS_PER_S)
+    handshake_ns = int(cfg.mk.handshake_s * NS_PER_S)
+    sticks = Sticks()
+    t_ns = 0
+    while t_ns < stop_ns:
+        prev_ns, t_ns = t_ns, vehicle.next_debug_ns()
+        state = vehicle.advance_to(t_ns, sticks)
+        for data in vehicle.laser_arrivals(t_ns):  # the step applies what has arrived
+            flight.laser(data, t_ns, faults)
+        imu = _debug_imu(vehicle, flight, t_ns, faults)
+        if excitation is not None and core.phase is Phase.HOLD:
+            core.set_hold_offset(*excitation.offset_m(t_ns))
+        out = core.imu_step(
+            imu,
+            PhaseRequests(takeoff=True, land=t_ns >= end_ns, handshake_ok=t_ns >= handshake_ns),
+            sticks=PilotSticks(thrust_counts=stick_gas),
+        )
+        flight.log_step(t_ns, out, imu)
+        sp = core.active_setpoint
+        if out.phase is Phase.HOLD and out.estimate.pose_valid and sp is not None:
+            tally.hold(t_ns, t_ns - prev_ns, end_ns, state, sp)
+        tally.steps += 1
+        sticks = _fc_sticks(out.command, stick_gas)
+        if tally.released_in_air(out.command.take_control, state):
+            break  # handed to the pilot in the air: the pilot has it now
+        if out.phase is Phase.RELEASED:
+            break
+    return t_ns
 
 
 def run_hover(
@@ -197,7 +214,6 @@ def run_hover(
     faults = HoverFaults() if faults is None else faults
     log_dir.mkdir(parents=True, exist_ok=True)
     flight = FlightSide(cfg, log_dir, height_m=height_m, scans=scans)
-    core = flight.core
     steps_asked = settings_from_config(cfg.laser)  # the driver's MD request (flight side)
     params = airframe_from_config(cfg.sim)
     airframe = {"kind": cfg.sim.airframe, "seed": cfg.sim.seed, **describe(params)}
@@ -214,82 +230,54 @@ def run_hover(
         truth=truth,
         params=params,
     )
-    stick_gas = cfg.sim.fc.stick_gas
     excitation = Excitation(excite_m, np.random.default_rng([seed, 1])) if excite_m > 0 else None
-    end_ns = int(duration_s * NS_PER_S)
-    stop_ns = end_ns + int(LAND_MARGIN_S * NS_PER_S)
-    handshake_ns = int(cfg.mk.handshake_s * NS_PER_S)
-    err_x: list[float] = []
-    err_y: list[float] = []
-    err_z: list[float] = []
-    hold_start_ns: int | None = None
-    hold_ns = 0  # the measured time: the DebugOut intervals of the counted steps
-    prev_ns = 0
-    had_control = False
-    handed_back_m: float | None = None  # truth height when control last went back
-    sticks = Sticks()
-    t_ns = 0
-    steps = 0
+    tally = _Tally()
     try:
-        while t_ns < stop_ns:
-            prev_ns, t_ns = t_ns, vehicle.next_debug_ns()
-            state = vehicle.advance_to(t_ns, sticks)
-            for data in vehicle.laser_arrivals(t_ns):  # the step applies what has arrived
-                flight.laser(data, t_ns, faults)
-            # The FC's DebugOut, in its counts, decoded with the flight's calibration.
-            debug = DebugOut.from_values(vehicle.debug_values())
-            imu = imu_from_debug(debug, t_ns, flight.cal)
-            if faults.imu is not None and faults.active(t_ns):
-                imu = faults.imu(imu)
-            flight.attitude.append((t_ns, imu.pitch_rad, imu.roll_rad))
-            if excitation is not None and core.phase is Phase.HOLD:
-                core.set_hold_offset(*excitation.offset_m(t_ns))
-            out = core.imu_step(
-                imu,
-                PhaseRequests(takeoff=True, land=t_ns >= end_ns, handshake_ok=t_ns >= handshake_ns),
-                sticks=PilotSticks(thrust_counts=stick_gas),
-            )
-            flight.log_step(t_ns, out, imu)
-            sp = core.active_setpoint
-            if out.phase is Phase.HOLD and out.estimate.pose_valid and sp is not None:
-                hold_start_ns = t_ns if hold_start_ns is None else hold_start_ns
-                if t_ns - hold_start_ns >= SETTLE_S * NS_PER_S and t_ns < end_ns:
-                    err_x.append(float(state.pos_w_m[0]) - sp.x_m)
-                    err_y.append(float(state.pos_w_m[1]) - sp.y_m)
-                    err_z.append(state.height_m - sp.height_m)
-                    hold_ns += t_ns - prev_ns
-            steps += 1
-            command = out.command
-            if command.take_control:  # the FC applies it: extern + neutral sticks, gas capped
-                had_control, handed_back_m = True, None
-                sticks = Sticks(
-                    nick_counts=command.nick_counts,
-                    roll_counts=command.roll_counts,
-                    yaw_counts=command.yaw_counts,
-                    gas_counts=min(stick_gas, command.gas_counts),
-                )
-            else:
-                sticks = Sticks()
-                if had_control and handed_back_m is None:
-                    handed_back_m = state.height_m
-                    if handed_back_m > LANDED_M:
-                        break  # handed to the pilot in the air: the pilot has it now
-            if out.phase is Phase.RELEASED:
-                break
+        t_ns = _fly(
+            cfg, flight, vehicle, tally, duration_s=duration_s, faults=faults, excitation=excitation
+        )
     finally:
         flight.close()
         truth.close()
     wall_s = time.perf_counter() - wall0
-    sim_s = t_ns / NS_PER_S
+    result = _result(
+        cfg,
+        flight,
+        vehicle,
+        tally,
+        log_dir=log_dir,
+        scans=scans,
+        sim_s=t_ns / NS_PER_S,
+        wall_s=wall_s,
+        cpu0=cpu0,
+    )
+    write_flight_json(log_dir, with_summary(flight.info, result.as_dict()))
+    return result
+
+
+def _result(
+    cfg: Config,
+    flight: FlightSide,
+    vehicle: LockstepVehicle,
+    tally: _Tally,
+    *,
+    log_dir: Path,
+    scans: bool,
+    sim_s: float,
+    wall_s: float,
+    cpu0: float,
+) -> HoverResult:
+    """The flown hover's :class:`HoverResult`, the CPU time counted from ``cpu0``."""
+    core = flight.core
     end = flight_end(
         max_height_m=vehicle.max_height_m,
         in_control=core.last_command.take_control,
-        handed_back_m=handed_back_m,
+        handed_back_m=tally.handed_back_m,
     )
-    sx, rx = _stats(err_x)
-    sy, ry = _stats(err_y)
-    sz, rz = _stats(err_z)
-    result = HoverResult(
+    sx, rx = _stats(tally.err_x)
+    sy, ry = _stats(tally.err_y)
+    sz, rz = _stats(tally.err_z)
+    return HoverResult(
         std_x_m=sx,
         std_y_m=sy,
         std_z_m=sz,
@@ -300,22 +288,20 @@ def run_hover(
         log_dir=str(log_dir),
         sim_s=sim_s,
         wall_s=wall_s,
-        hold_s=hold_ns / NS_PER_S,
+        hold_s=tally.hold_ns / NS_PER_S,
         end=end,
         failsafes=list(core.counters.failsafe_events),
-        cpu_us_per_step=(time.process_time() - cpu0) / max(steps, 1) * 1e6,
+        cpu_us_per_step=(time.process_time() - cpu0) / max(tally.steps, 1) * 1e6,
         max_height_m=vehicle.max_height_m,
         final_height_m=vehicle.state.height_m,
         released=not core.last_command.take_control,
         touchdowns_mps=[float(speed) for _, speed in vehicle.touchdowns],
-        airframe=describe(params),
+        airframe=describe(vehicle.params),
         airframe_kind=cfg.sim.airframe,
         airframe_seed=cfg.sim.seed,
         learned=flight.learned(),
         scans=scans,
     )
-    write_flight_json(log_dir, with_summary(flight.info, result.as_dict()))
-    return result
 
 
 __all__ = [

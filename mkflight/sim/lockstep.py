@@ -15,7 +15,8 @@ carry, on the times they would carry it:
 
   - *poses* (the default, fast): the true pose and height at the scan's time plus
     scan-matcher-sized noise (:class:`PoseFix`), stamped ``t + laser_extra_delay_s`` and
-    delivered ``LASER_DELAY_NS`` (100 ms, seed §G) + extra + jitter after ``t``;
+    delivered ``LASER_DELAY_NS`` (100 ms, §G of the 2011 QUT CyPhy MikroKopter
+    documentation) + extra + jitter after ``t``;
   - *scans* (``scans=True``): the raw ranges the URG would send (:class:`RawScan`),
     ray-cast in the room (:func:`~mkflight.sim.world.default_room`) by
     :class:`~mkflight.sim.urg_scene.RoomScene` from the pose at each beam group's own

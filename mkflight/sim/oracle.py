@@ -1,32 +1,22 @@
-"""The oracle: an airframe flown by a PID on its TRUE state, with gains searched (issue 17).
+"""The oracle: an airframe flown by a PID on its TRUE state, with gains searched.
 
 What the physics allows. The flight is judged against this: the same airframe (its
 :class:`~mkflight.sim.vehicle.VehicleParams`), the same gusts (the same ``gust_seed``, so
 the same OU turbulence and wind at the same instants) and the same hold window, flown by
-a controller that knows everything the flight has to estimate:
-
-* it reads the true position, velocity, yaw, height and battery every DebugOut period
-  (:data:`PERIOD_S`, 52 FC ticks of 1.024 ms), as the flight's control step runs;
-* horizontal: the flight's cascade (SPEC §4, :mod:`mkflight.control.position`) on truth:
-  position P + I -> velocity set-point (norm <= :data:`MAX_SPEED_MPS`) -> velocity PID
-  (derivative on the measurement) -> world acceleration -> heading frame -> tilt
-  (pitch ``-a_x / g``, roll ``a_y / g``, norm <= :data:`MAX_TILT_RAD`) -> counts in the
-  airframe's TRUE counts per radian and signs, rounded to the integer counts an
-  ExternControl frame carries;
-* yaw and height held by true-state loops (the height is not judged): a P loop on the yaw
-  error with the airframe's true yaw rate per count, and a PD + I loop on the height error
-  around the airframe's true hover gas at the true battery voltage, divided by the tilt.
+a controller that knows everything the flight has to estimate
+(:class:`~mkflight.sim.oracle_pilot.TruthPilot`: the flight's horizontal cascade with the
+gains under test, on the true state).
 
 The delay (attitude delay + lag, the 53 ms sample-and-hold, the integer counts) and the
 gusts stay: no estimator can remove those. :func:`search_oracle` searches the five
 horizontal gains for the smallest ``(std x + std y) / 2`` about the set-point over the
 hold: a coarse search along a common scale of the gains (:data:`BASE_GAINS` at a
 bandwidth guessed from the airframe's delay and lag), then a Nelder-Mead refinement in
-log-gain space (scipy). Every evaluation flies the same gusts
-and the same noise seed, so the objective is deterministic and the search reproducible.
+log-gain space (scipy). Every evaluation flies the same gusts and the same noise seed, so
+the objective is deterministic and the search reproducible.
 
 The simulator never reads the flight code's constants (``cfg.control``, ``cfg.mk``): the
-limits here are the oracle's own copies of the flight's defaults.
+oracle's limits and gains are its own copies of the flight's defaults.
 """
 
 from __future__ import annotations
@@ -38,25 +28,16 @@ from typing import Final
 
 import numpy as np
 
-from mkflight.frames import wrap_pi
-from mkflight.sim.vehicle import Sticks, VehicleParams, initial_state, step
+from mkflight.sim.oracle_pilot import PERIOD_S, TruthPilot
+from mkflight.sim.vehicle import VehicleParams, initial_state, step
 
-PERIOD_S: Final = 52 * 1.024e-3  # the FC's DebugOut period (mk-serial.md §7.2)
-MAX_SPEED_MPS: Final = 0.5  # velocity set-point norm (the flight's control.max_speed_mps)
-MAX_TILT_RAD: Final = 0.30  # tilt norm (the flight's control.max_tilt_rad)
-MAX_COUNTS: Final = 127  # an ExternControl stick is a signed byte
-YAW_MAX_COUNTS: Final = 40
-YAW_GAIN_PER_S: Final = 2.0  # yaw rate set-point per rad of yaw error
-HEIGHT_KP_PER_S2: Final = 16.0  # height loop: acceleration per m of error (1/s^2)
-HEIGHT_KD_PER_S: Final = 8.0  # ... per m/s of vertical speed
-HEIGHT_KI_PER_S3: Final = 8.0  # ... per m s of integrated error
-HEIGHT_I_LIMIT_MPS2: Final = 2.0
-GAS_MAX_COUNTS: Final = 255.0
 MIN_SETTLE_S: Final = 3.0  # never judge the first seconds in the air
 DEFAULT_SETTLE_S: Final = 5.0
 DEFAULT_HEIGHT_M: Final = 0.6
 DEFAULT_EVALUATIONS: Final = 40
-NOMINAL_RESPONSE_S: Final = 0.2  # delay + lag the control defaults were tuned on (seed §F)
+#: Delay + lag the control defaults were tuned on (§F of the 2011 QUT CyPhy MikroKopter
+#: documentation: the MK's ~200 ms attitude response).
+NOMINAL_RESPONSE_S: Final = 0.2
 
 
 @dataclass(frozen=True, slots=True)
@@ -155,11 +136,6 @@ def _gain_items(g: OracleGains) -> list[tuple[str, float]]:
     return list(zip(names, g.as_tuple(), strict=True))
 
 
-def _stick(value: float, limit: int) -> float:
-    """A command rounded to whole counts within ±limit (a signed byte on the wire)."""
-    return float(min(max(round(value), -limit), limit))
-
-
 def fly_oracle(
     params: VehicleParams,
     gains: OracleGains,
@@ -197,68 +173,19 @@ def fly_oracle(
         raise ValueError(msg)
     rng = np.random.default_rng(seed)
     state = initial_state(params, rng, pos_w_m=(0.0, 0.0, -height_m), gust_seed=gust_seed)
-    g = params.g_mps2
-    kp, ki, kpv, kiv, kdv = gains.as_tuple()
-    a_max = g * MAX_TILT_RAD
-    to_counts_pitch = params.counts_per_rad * params.nick_sign  # counts = angle * this
-    to_counts_roll = params.counts_per_rad * params.roll_sign
-    yaw_counts_per_radps = 1.0 / (params.yaw_sign * params.yaw_rate_radps_per_count)
-    ix = iy = ivx = ivy = iz = 0.0
-    iz_limit = HEIGHT_I_LIMIT_MPS2 / HEIGHT_KI_PER_S3  # the integral term within ±2 m/s²
-    prev_vx, prev_vy = state.vel_w_mps[0], state.vel_w_mps[1]
+    pilot = TruthPilot(params, gains.as_tuple(), height_m, state.vel_w_mps)
     start_n = math.ceil(settle_s / PERIOD_S - 1e-9)
     end_n = start_n + round(hold_s / PERIOD_S)
     ex: list[float] = []
     ey: list[float] = []
     ez: list[float] = []
-    dt = PERIOD_S
     for n in range(end_n):
-        x, y, z = state.pos_w_m
-        vx, vy, vz = state.vel_w_mps
         if n >= start_n:
+            x, y, z = state.pos_w_m
             ex.append(x)
             ey.append(y)
             ez.append(-z - height_m)
-        # position P + I -> velocity set-point (norm-limited, integral clamped to it)
-        ix = min(max(ix - x * dt, -MAX_SPEED_MPS / max(ki, 1e-9)), MAX_SPEED_MPS / max(ki, 1e-9))
-        iy = min(max(iy - y * dt, -MAX_SPEED_MPS / max(ki, 1e-9)), MAX_SPEED_MPS / max(ki, 1e-9))
-        vsx, vsy = -kp * x + ki * ix, -kp * y + ki * iy
-        speed = math.hypot(vsx, vsy)
-        if speed > MAX_SPEED_MPS:
-            vsx, vsy = vsx * MAX_SPEED_MPS / speed, vsy * MAX_SPEED_MPS / speed
-        # velocity PID (derivative on the measurement) -> world acceleration
-        ilim = a_max / max(kiv, 1e-9)
-        ivx = min(max(ivx + (vsx - vx) * dt, -ilim), ilim)
-        ivy = min(max(ivy + (vsy - vy) * dt, -ilim), ilim)
-        axw = kpv * (vsx - vx) + kiv * ivx - kdv * (vx - prev_vx) / dt
-        ayw = kpv * (vsy - vy) + kiv * ivy - kdv * (vy - prev_vy) / dt
-        prev_vx, prev_vy = vx, vy
-        axw, ayw = min(max(axw, -a_max), a_max), min(max(ayw, -a_max), a_max)
-        # world -> heading frame (SPEC §1), tilt, norm clamp, true counts per radian
-        cy, sy = math.cos(state.yaw_rad), math.sin(state.yaw_rad)
-        abx, aby = cy * axw + sy * ayw, -sy * axw + cy * ayw
-        pitch, roll = -abx / g, aby / g
-        tilt = math.hypot(pitch, roll)
-        if tilt > MAX_TILT_RAD:
-            pitch, roll = pitch * MAX_TILT_RAD / tilt, roll * MAX_TILT_RAD / tilt
-        # yaw held at 0 (a rate stick), height by PD + I around the true hover gas
-        yaw_counts = _stick(
-            YAW_GAIN_PER_S * wrap_pi(-state.yaw_rad) * yaw_counts_per_radps, YAW_MAX_COUNTS
-        )
-        err_z = height_m + z  # z is down: height = -z
-        iz = min(max(iz + err_z * dt, -iz_limit), iz_limit)
-        acc_up = HEIGHT_KP_PER_S2 * err_z + HEIGHT_KI_PER_S3 * iz + HEIGHT_KD_PER_S * vz
-        volts = max(state.battery_v, 0.5 * params.hover_voltage_v)
-        hover = params.hover_gas_counts * (params.hover_voltage_v / volts) ** 2
-        tilt_cos = max(math.cos(state.pitch_rad) * math.cos(state.roll_rad), 0.5)
-        gas = min(max(round(hover * (1.0 + acc_up / g) / tilt_cos), 0.0), GAS_MAX_COUNTS)
-        sticks = Sticks(
-            nick_counts=_stick(pitch * to_counts_pitch, MAX_COUNTS),
-            roll_counts=_stick(roll * to_counts_roll, MAX_COUNTS),
-            yaw_counts=yaw_counts,
-            gas_counts=float(gas),
-        )
-        state = step(state, sticks, dt, params, rng)
+        state = step(state, pilot.sticks(state), PERIOD_S, params, rng)
     return OracleFlight(gains, _std(ex), _std(ey), _std(ez), len(ex))
 
 
@@ -271,7 +198,7 @@ def _std(values: list[float]) -> float:
 def guess_bandwidth(params: VehicleParams) -> float:
     """A starting scale of :data:`BASE_GAINS` for this airframe: nominal response / its own.
 
-    The defaults suit a 0.1 s delay + 0.1 s lag (seed §F); a loop around a slower response
+    The defaults suit a 0.1 s delay + 0.1 s lag (§F); a loop around a slower response
     must be slower by about the same factor (a delay's phase lag grows with frequency).
     """
     response_s = params.attitude_delay_s + params.attitude_tau_s
@@ -299,7 +226,7 @@ def search_oracle(
 
     Every evaluation is :func:`fly_oracle` with the same ``seed``, ``gust_seed`` and
     window: a deterministic objective. The result is never worse than the defaults.
-    A 60 s hold costs ~0.16 s an evaluation on this machine: ~6 s for the default 40.
+    A 60 s hold costs ~0.2 s an evaluation on this machine: ~8 s for the default 40.
     """
     from scipy.optimize import minimize
 

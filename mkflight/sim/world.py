@@ -299,10 +299,11 @@ class SimWorld:
 def default_room() -> Room:
     """A 4 m x 3 m box with a 0.25 m pillar, the world origin off-centre (SPEC §8).
 
-    Walls in every direction within 3 m (the URG reads to 4 m, seed §P), a pillar and
-    unequal distances so that x, y and yaw are all observable by the scan matcher. Room
-    coordinates are standard 2-D math (y to the left, :mod:`mkflight.sim.room`): the walls
-    are 1.6 m behind, 2.4 m ahead, 1.8 m left and 1.2 m right of the origin.
+    Walls in every direction within 3 m (the URG reads to 4 m: §P of the 2011 QUT CyPhy
+    MikroKopter documentation), a pillar and unequal distances so that x, y and yaw are all
+    observable by the scan matcher. Room coordinates are standard 2-D math (y to the left,
+    :mod:`mkflight.sim.room`): the walls are 1.6 m behind, 2.4 m ahead, 1.8 m left and 1.2 m
+    right of the origin.
     """
     walls = rect_walls((-1.6, -1.2, 2.4, 1.8))
     pillar = rect_walls((1.2, 0.7, 1.45, 0.95))  # ahead and to the left

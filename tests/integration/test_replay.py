@@ -1,4 +1,4 @@
-"""``mkflight replay`` end to end (issue 9): a recorded simulated flight played back.
+"""``mkflight replay`` end to end: a recorded simulated flight played back.
 
 One real flight (``fly --hover --sim``) is recorded per module; the tests replay it, and
 damaged copies of it, through the CLI and through :func:`replay_flight`.
@@ -220,7 +220,7 @@ def test_the_seeds_two_tables_alone_replay_through_the_daemon(flight: Path, tmp_
         assert cols[name]["max_abs_diff"] == 0.0  # counts -> SI -> counts -> SI: lossless
     for name in ("CurrentPosition.x", "CurrentPosition.y", "CurrentPosition.theta"):
         assert cols[name]["rows"] > 50
-        assert cols[name]["max_abs_diff"] == 0.0  # the seed's poses stood in for ICP
+        assert cols[name]["max_abs_diff"] == 0.0  # TABLE III's poses stood in for ICP
     assert cols["W_Vel.x"]["rms_diff"] < 0.01  # velocities from the same poses
     # our controller, similar commands: a sign error or noise would give <= 0; per axis
     # the correlation of two noisy command streams over an 8 s hold is 0.18-0.47

@@ -1,4 +1,4 @@
-"""``mkflight sim envelope`` (issue 17): the criteria, the reports and the command."""
+"""``mkflight sim envelope``: the criteria, the reports and the command."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The FC's DebugOut timing: its loop's jitter and late frames, in the pure model (issue 17)."""
+"""The FC's DebugOut timing: its loop's jitter and late frames, in the pure model."""
 
 from __future__ import annotations
 

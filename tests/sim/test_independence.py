@@ -1,6 +1,6 @@
 """The simulator is a second opinion: its vehicle side reads none of the flight's constants.
 
-SPEC §8 and issue 17: nothing of the simulated airframe, its sensors, its encoders or its
+SPEC §8: nothing of the simulated airframe, its sensors, its encoders or its
 links may come from ``mk``, ``control``, ``estimation`` or ``laser``, the flight code's
 calibration objects, or the URG driver's ``transport_delay_s``. Only the modules that *are*
 the flight side (``sim hover``'s :mod:`mkflight.sim.hover_flight` and

@@ -1,4 +1,4 @@
-"""The simulated side of ``sim hover``: DebugOut instants, laser timing, scans (issue 17)."""
+"""The simulated side of ``sim hover``: DebugOut instants, laser timing, scans."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The oracle (issue 17): a PID on the true state, gains searched, the same gusts."""
+"""The oracle: a PID on the true state, gains searched, the same gusts."""
 
 from __future__ import annotations
 

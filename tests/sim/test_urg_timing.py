@@ -1,4 +1,4 @@
-"""The emulated URG's timing and hat are the airframe's, never the driver's (issue 17)."""
+"""The emulated URG's timing and hat are the airframe's, never the driver's."""
 
 from __future__ import annotations
 
