@@ -1,10 +1,11 @@
-"""The FC's attitude response: pure delay + first-order lag + gain + offset (seed §F).
+"""The FC's attitude response: pure delay + first-order lag + gain + offset (§F).
 
-The commanded angle is held from each row's time to the next (zero-order hold); the model
-is ``tau * x'(t) + x(t) = u(t - d)``, ``angle(t) = K * x(t) + b``, simulated exactly
-between the rows' real (jittered) times from rest. Every ``(d, tau)`` of a grid
-(:data:`DELAY_GRID_S`, :data:`TAU_GRID_S`) gets ``K`` and ``b`` by linear least squares,
-all at once (one pass over the rows with the whole grid as arrays), and the point of least
+§F is that of the 2011 QUT CyPhy MikroKopter documentation. The commanded angle is held from
+each row's time to the next (zero-order hold); the model is
+``tau * x'(t) + x(t) = u(t - d)``, ``angle(t) = K * x(t) + b``, simulated exactly between
+the rows' real (jittered) times from rest. Every ``(d, tau)`` of a grid
+(:data:`DELAY_GRID_S`, :data:`TAU_GRID_S`) gets ``K`` and ``b`` by linear least squares, all
+at once (one pass over the rows with the whole grid as arrays), and the point of least
 residual wins. :func:`fit_attitude` fits each axis and all of them together (one ``d``,
 ``tau`` and ``K``, an offset each); :mod:`mkflight.analysis.identify` applies it to a
 flight. A fit whose data cannot carry it says why in :attr:`AttitudeFit.poor`.
@@ -50,7 +51,7 @@ GAIN_LIMITS: Final = (0.5, 2.0)
 
 @dataclass(frozen=True, slots=True)
 class AttitudeFit:
-    """A delay + first-order lag fit of the FC's angle to the commanded angle (seed §F).
+    """A delay + first-order lag fit of the FC's angle to the commanded angle (§F).
 
     Attributes:
         axis: ``"pitch"``, ``"roll"`` or ``"both"`` (one model for the two axes).

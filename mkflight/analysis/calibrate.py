@@ -1,6 +1,7 @@
-"""Accelerometer scale factor from tilt measurements (seed §D, eq 7, TABLE I and II).
+"""Accelerometer scale factor from tilt measurements (§D, eq 7, TABLE I and II).
 
-The seed tilts the vehicle to known angles and reads the MK's raw AccNick / AccRoll counts.
+§D, eq 7 and TABLE I and II are those of the 2011 QUT CyPhy MikroKopter documentation,
+which tilts the vehicle to known angles and reads the MK's raw AccNick / AccRoll counts.
 A static accelerometer measures gravity's component along its axis, and the MK counts carry
 the opposite sign of our angles (SPEC §1), so ``counts = -k·sin(angle)`` with ``k`` in
 counts per g. The least-squares ``k`` over all rows is ``k = -Σ c·s / Σ s²`` (s = sin angle).
@@ -44,10 +45,10 @@ class CalibrationRow:
 
 @dataclass(frozen=True, slots=True)
 class AccFit:
-    """The least-squares fit of ``counts = -k·sin(angle)`` (seed eq 7).
+    """The least-squares fit of ``counts = -k·sin(angle)`` (eq 7).
 
     Attributes:
-        k_counts_per_g: scale factor, MK counts per g (seed: 606.3 nick, 603.44 roll).
+        k_counts_per_g: scale factor, MK counts per g (§D: 606.3 nick, 603.44 roll).
         residual_rms_counts: root mean square of the per-row errors, counts.
         rows: the rows fitted, in input order.
         errors_counts: per row, measured minus fitted counts.
@@ -117,10 +118,10 @@ def _is_numeric(token: str) -> bool:
 
 
 def fit_acc_scale(rows: Sequence[CalibrationRow], source: str = "table") -> AccFit:
-    """Least-squares ``k`` of ``counts = -k·sin(angle)`` over all rows (seed eq 7).
+    """Least-squares ``k`` of ``counts = -k·sin(angle)`` over all rows (eq 7).
 
     Args:
-        rows: the measurements (every row counts once; the seed's printed "Mean" rows are
+        rows: the measurements (every row counts once; TABLE I and II's printed "Mean" rows are
             not measurements and should not be included).
         source: the data's name, used in error messages.
 

@@ -1,9 +1,10 @@
-"""Flight time from battery capacity and current (seed §L, eq 27: t = B / C).
+"""Flight time from battery capacity and current (§L, eq 27: t = B / C).
 
-The seed's numbers: a 2.2 Ah LiPo and 4 motors at ≈ 1.7 A (6.8 A) give 19.4 minutes, the
-ideal limit; x 0.9 for the losses (voltage sag, turbulence, regulation, cables) gives
-17.47 minutes; the onboard computer and laser draw < 0.5 A more, so 0.9 x 2.2 / 7.3 h =
-16.27 minutes (the seed prints 16.28). A 1040 g vehicle needs 260 g of thrust per motor.
+§L and eq 27 are those of the 2011 QUT CyPhy MikroKopter documentation. Its numbers: a 2.2
+Ah LiPo and 4 motors at ≈ 1.7 A (6.8 A) give 19.4 minutes, the ideal limit; x 0.9 for the
+losses (voltage sag, turbulence, regulation, cables) gives 17.47 minutes; the onboard
+computer and laser draw < 0.5 A more, so 0.9 x 2.2 / 7.3 h = 16.27 minutes (§L prints
+16.28). A 1040 g vehicle needs 260 g of thrust per motor.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import math
 from dataclasses import dataclass
 
 DEFAULT_USABLE_FRACTION = 0.9
-"""The seed's empirical derating factor (§L)."""
+"""The original system's empirical derating factor (§L)."""
 
 MOTORS = 4
 MIN_PER_H = 60.0
@@ -53,11 +54,11 @@ def flight_time(
     """Eq 27, ``t = B / C``, ideal and derated, and the per-motor thrust for a mass.
 
     Args:
-        capacity_ah: battery capacity B, Ah (seed: 2.2).
-        current_a: total motor current, A (seed: 4 x 1.7 = 6.8).
-        usable: derating factor in (0, 1] (seed: 0.9).
-        extra_current_a: current of the other electronics, A, added to C (seed: 0.5).
-        mass_g: take-off mass, g (seed: 1040 → 260 g per motor).
+        capacity_ah: battery capacity B, Ah (§L: 2.2).
+        current_a: total motor current, A (§L: 4 x 1.7 = 6.8).
+        usable: derating factor in (0, 1] (§L: 0.9).
+        extra_current_a: current of the other electronics, A, added to C (§L: 0.5).
+        mass_g: take-off mass, g (§L: 1040 → 260 g per motor).
 
     Returns:
         The ideal and derated times in minutes and the thrust per motor in grams.

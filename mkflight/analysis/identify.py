@@ -1,12 +1,13 @@
 """Identify the airframe from a recorded flight: attitude response, hover gas, vibration, biases.
 
 What a flight folder (:func:`mkflight.logs.load_flight`) tells of the vehicle it flew, for
-``mkflight tune`` (issue 17, item 3). Everything is read from the HOLD phase of the
-``step`` events and the TABLE IV rows of the same steps (row ``index`` k is the k-th step),
-with the flight's own configuration (``flight.json``'s ``config``; the defaults when the
-folder has none):
+``mkflight tune`` (:mod:`mkflight.analysis.tune`). Everything is read from the HOLD phase
+of the ``step`` events and the TABLE IV rows of the same steps (row ``index`` k is the
+k-th step), with the flight's own configuration (``flight.json``'s ``config``; the
+defaults when the folder has none). § and TABLE: the 2011 QUT CyPhy MikroKopter
+documentation.
 
-* **Attitude response** per axis (seed §F): the commanded angle is
+* **Attitude response** per axis (§F): the commanded angle is
   ``counts / (mk.signs.<axis> * mk.counts_per_rad)`` (``ControlPitch`` for pitch,
   ``ControlRoll`` for roll), held from its step's time until the next step (zero-order
   hold: the FC takes the command a few ms after each DebugOut; that small latency ends up
@@ -25,7 +26,7 @@ folder has none):
   (one ``d``, ``tau`` and ``K``, an offset each).
 * **Hover gas**: the gas that holds the weight at ``control.hover_voltage_v`` and level
   attitude, in the flight's own feed-forward model (``gas_ff = hover_gas *
-  (hover_voltage_v / battery_v) / (cos θ cos φ)``, seed §K, §M): the median over the
+  (hover_voltage_v / battery_v) / (cos θ cos φ)``, §K, §M): the median over the
   steady HOLD steps (``|vz_up_mps|`` ≤ 0.1 m/s) of ``gas * (battery_v / hover_voltage_v) *
   cos θ cos φ``.
 * **Vibration** per accelerometer axis: the standard deviation of successive differences

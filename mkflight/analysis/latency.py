@@ -1,24 +1,24 @@
-"""The vehicle's response lag by cross-correlation of command and response (seed §F, Fig 8).
+"""The vehicle's response lag by cross-correlation of command and response (§F, Fig 8).
 
-The seed correlates the body-frame velocity with the pitch and reads a peak at about 4
-steps of 50 ms: "the MK responds 200 ms later". Its vehicle model (and ours, SPEC §8) is a
-pure delay d followed by a first-order lag τ from the commanded to the flown tilt; for a
-command that varies slowly against τ that is a delay of d + τ, the **response lag** this
-module estimates (measured on the simulator flown with ``--excite 0.2``: d + τ = 0.15,
-0.2, 0.3, 0.35 s with τ ≤ 0.1 s are read within a step; a long lag against the closed
-loop's commands reads short: d = 0.1, τ = 0.2 s reads 0.23 s, because those commands
-are not slow against τ). Three curves, each the x/y mean of the normalised cross-correlation
-r[k] = corr(drive[t], response[t + k]) for k = 0..``max_lag`` steps:
-
+§ and Fig are those of the 2011 QUT CyPhy MikroKopter documentation. It correlates the
+body-frame velocity with the pitch and reads a peak at about 4 steps of 50 ms: "the MK
+responds 200 ms later". Its vehicle model (and ours, SPEC §8) is a pure delay d followed by
+a first-order lag τ from the commanded to the flown tilt; for a command that varies slowly
+against τ that is a delay of d + τ, the **response lag** this module estimates (measured on
+the simulator flown with ``--excite 0.2``: d + τ = 0.15, 0.2, 0.3, 0.35 s with τ ≤ 0.1 s are
+read within a step; a long lag against the closed loop's commands reads short: d = 0.1, τ =
+0.2 s reads 0.23 s, because those commands are not slow against τ). Three curves, each the
+x/y mean of the normalised cross-correlation r[k] = corr(drive[t], response[t + k]) for k =
+0..``max_lag`` steps:
 * **acceleration** (the lag reported): the body-frame velocity of the laser (TABLE III
   ``B_Vel.x``/``B_Vel.y``) differenced to an acceleration. Tilt makes acceleration
   (a = g·tilt), so the acceleration follows the command by the response lag. Correlating
-  the velocity itself (the seed's Fig 8 literally) adds the integration: a command held
+  the velocity itself (Fig 8 literally) adds the integration: a command held
   for a while keeps pushing the velocity, and that curve peaks later the longer the
   commands dwell — it is kept as ``velocity``, but it is not the lag.
 * **attitude**: the FC's own angles (TABLE IV ``AnglePitch``/``AngleRoll``) against the
   commanded angle: the attitude loop alone, without the laser.
-* **velocity**: the seed's Fig 8 curve as it is.
+* **velocity**: the Fig 8 curve as it is.
 
 Signs (SPEC §1, §4): our pitch command is θ* = -ControlPitch/k and it asks for a_x = -g·θ*,
 so the x drive is ``+ControlPitch`` (attitude: ``-ControlPitch`` against θ); our roll
@@ -51,7 +51,7 @@ IMU_PERIOD_S = 0.05
 LASER_PERIOD_S = 0.1
 MAX_LAG_STEPS = 20
 SEED_LAG_STEPS = 4
-"""The seed's Fig 8: ≈ 4 steps = 200 ms."""
+"""The original system's response lag, Fig 8: ≈ 4 steps = 200 ms."""
 WEAK_PEAK_R = 0.3
 """A peak below this is weak: the flight had too little excitation (e.g. a calm hover)."""
 

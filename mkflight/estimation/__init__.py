@@ -1,7 +1,11 @@
-"""State estimation (SPEC §3, seed §H): the complementary filter and latency compensation.
+"""State estimation (SPEC §3, §H): per-axis filters and latency compensation.
 
-:mod:`.filter` holds the pure per-axis laws (eq 15-20); :mod:`.estimator` the stateful
-:class:`Estimator` that the flight step feeds with IMU samples, laser poses and hat heights.
+§ and eq are those of the 2011 QUT CyPhy MikroKopter documentation. :mod:`.filter` holds
+the pure per-axis laws of the complementary filter and the laser's velocity (eq 15-20),
+:mod:`.kalman` the per-axis Kalman filter (the default), :mod:`.vertical` the height and
+vertical speed without the hat;
+:mod:`.estimator` the stateful :class:`Estimator` that the flight step feeds with IMU
+samples, laser poses and hat heights.
 """
 
 from __future__ import annotations

@@ -1,9 +1,10 @@
-"""The estimator (SPEC §3, seed §H): IMU prediction, laser correction, latency compensation.
+"""The estimator (SPEC §3, §H): IMU prediction, laser correction, latency compensation.
 
-A pure, stateful core: the flight step calls :meth:`Estimator.on_imu` for each DebugOut
-(~50 ms), :meth:`Estimator.on_pose` for each scan-matched pose (100 ms, stamped with the
-time the scan was *taken*, ~100 ms before it arrives) and :meth:`Estimator.on_height` for
-each hat height. No clock is read: every time comes in as ``t_ns``.
+§ and eq are those of the 2011 QUT CyPhy MikroKopter documentation. A pure, stateful core:
+the flight step calls :meth:`Estimator.on_imu` for each DebugOut (~50 ms),
+:meth:`Estimator.on_pose` for each scan-matched pose (100 ms, stamped with the time the scan
+was *taken*, ~100 ms before it arrives) and :meth:`Estimator.on_height` for each hat height.
+No clock is read: every time comes in as ``t_ns``.
 
 How it works (the complementary filter). The history is a list of *knots*
 (:mod:`mkflight.estimation.knots`): each IMU sample is one, holding its level-frame
@@ -18,7 +19,7 @@ smoothly). With latency compensation the laser velocity, an average over the las
 interval, is carried forward to each knot with the measured acceleration, so the filter
 compares like with like. A scan older than the history falls back on the one-sample
 prediction of eq 18-20; ``latency_compensation: false`` uses each pose as if it were
-current (the seed's behaviour).
+current (the original system's behaviour, §H).
 
 The filter (``estimation.filter``). By default a Kalman filter per axis
 (:mod:`mkflight.estimation.kalman`): position, velocity and the disturbance the model
@@ -31,7 +32,7 @@ knots since with it: the same estimate as if it had arrived in time. ``complemen
 eq 15-17 as described above; with ``tilt_acceleration`` the acceleration it integrates is
 the attitude's plus the accelerometers' view of what it misses
 (:mod:`mkflight.estimation.tilt_accel`), which keeps the motors' vibration out of the
-velocity; without, it is the seed's filter.
+velocity; without, it is the original system's filter (eq 15-17).
 
 Non-finite or implausible input is rejected and counted: NaN never enters the state.
 """
@@ -86,7 +87,7 @@ noise grows by this much per second of age."""
 
 
 class Estimator:
-    """World-frame position, velocity, yaw and height (SPEC §3; seed eq 15-20, 26).
+    """World-frame position, velocity, yaw and height (SPEC §3; eq 15-20, 26).
 
     Args:
         cfg: filter period (default T), gains k, latency compensation, history length.

@@ -1,6 +1,7 @@
-"""The complementary filter (seed §H eq 15-17) and the laser's velocity (eq 18-20).
+"""The complementary filter (§H eq 15-17) and the laser's velocity (eq 18-20).
 
-Pure functions and small frozen records; no clock, no I/O. The filter runs per axis:
+§ and eq are those of the 2011 QUT CyPhy MikroKopter documentation. Pure functions and small
+frozen records; no clock, no I/O. The filter runs per axis:
 
     v_hat(t+1) = v_hat(t) + T * (k * (v_meas - v_hat(t)) + a(t))        (eq 15-17)
 
@@ -27,7 +28,7 @@ def complementary_step(
     dt_s: float,
     gain_per_s: float,
 ) -> float:
-    """One step of the complementary filter on one axis (seed eq 15, 16 or 17).
+    """One step of the complementary filter on one axis (eq 15, 16 or 17).
 
     Args:
         v_hat_mps: the estimate at t, m/s.
@@ -45,7 +46,7 @@ def complementary_step(
 
 @dataclass(frozen=True, slots=True)
 class LaserVelocity:
-    """The laser's velocity over the interval between two poses (seed eq 19, Fig. 17).
+    """The laser's velocity over the interval between two poses (eq 19, Fig. 17).
 
     ``vx_w_mps``/``vy_w_mps`` are in the world frame W; ``yaw_rate_radps`` is clockwise.
     ``t_ns`` is the later pose's (scan) time and ``dt_s`` the interval it spans.
@@ -58,12 +59,12 @@ class LaserVelocity:
     yaw_rate_radps: float
 
     def in_body(self, yaw_rad: float) -> tuple[float, float]:
-        """This velocity in the heading frame at yaw ``yaw_rad`` (seed eq 4; SPEC §1)."""
+        """This velocity in the heading frame at yaw ``yaw_rad`` (eq 4; SPEC §1)."""
         return world_to_body(self.vx_w_mps, self.vy_w_mps, yaw_rad)
 
 
 def laser_velocity(prev: Pose2D, cur: Pose2D) -> LaserVelocity | None:
-    """Differentiate two successive poses over their timestamps (seed eq 19).
+    """Differentiate two successive poses over their timestamps (eq 19).
 
     ``v = (x(t) - x(t-1)) / T`` with T the poses' time difference, not an assumed 100 ms.
 
@@ -100,7 +101,7 @@ def rate_of_change(prev_t_ns: int, prev_value: float, t_ns: int, value: float) -
 
 
 def predict_pose(prev: Pose2D, cur: Pose2D, horizon_s: float | None = None) -> Pose2D:
-    """The one-sample prediction of the laser pose (seed eq 18-20).
+    """The one-sample prediction of the laser pose (eq 18-20).
 
     ``x_hat(t + h) = x(t) + (x(t) - x(t-1)) / T * h``; with ``h = T`` (the default) this
     is eq 20, ``2 x(t) - x(t-1)``. Yaw is extrapolated the same way on the wrapped

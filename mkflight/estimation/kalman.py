@@ -1,11 +1,11 @@
 """One axis of the estimator's Kalman filter: position, velocity and disturbance (SPEC §3).
 
-The seed's complementary filter (eq 15-17) blends the laser's velocity — the difference
-of two poses, so the pose noise times √2 / 0.1 s — with the integrated acceleration at a
-fixed gain k. On a MikroKopter whose accelerometers carry the motors' vibration (5-30
-AccNick counts, issue 17) no fixed k is right: a high one lets the differenced poses'
-noise through, a low one the integrated vibration. This filter takes each source for
-what it is worth, with a gain from the noise *measured in flight*:
+The complementary filter of the 2011 QUT CyPhy MikroKopter documentation (eq 15-17) blends
+the laser's velocity — the difference of two poses, so the pose noise times √2 / 0.1 s —
+with the integrated acceleration at a fixed gain k. On a MikroKopter whose accelerometers
+carry the motors' vibration (5-30 AccNick counts) no fixed k is right: a high one lets the
+differenced poses' noise through, a low one the integrated vibration. This filter takes each
+source for what it is worth, with a gain from the noise *measured in flight*:
 
 * state ``(p, v, d)`` per axis: position, velocity and the disturbance ``d`` — the
   acceleration the model misses (gusts, drag, the learned hover gas's error);
@@ -155,7 +155,7 @@ def update_position(s: AxisState, z: float, std: float) -> AxisState:
 
     A jump (:func:`is_jump`) is not weighed but taken: the position becomes ``z`` (the
     velocity and the disturbance stay), as the complementary filter would take it. A
-    hat over a table's edge or the seed's tables' take-off step must not become a
+    hat over a table's edge or the original system's tables' take-off step must not become a
     velocity of metres per second.
     """
     var = s.pp + std * std

@@ -1,20 +1,21 @@
 """What the flight learns of its airframe while it holds: biases, hover gas, vibration.
 
-An airframe on its first flight differs from the configuration in every constant
-(issue 17: hover gas 82-115 counts, accelerometer offsets of ±10 counts, a horizon off
-by 0.02 rad, vibration of 5-30 counts). While the vehicle holds on the laser, three of
-them are observable with simple averages, because a vehicle that holds its height and
-position does not accelerate on average:
+An airframe on its first flight differs from the configuration in every constant (the
+envelope of :mod:`mkflight.sim.airframe`: hover gas 82-115 counts, accelerometer offsets of
+±10 counts, a horizon off by 0.02 rad, vibration of 5-30 counts). While the vehicle holds on
+the laser, three of them are observable with simple averages, because a vehicle that holds
+its height and position does not accelerate on average:
 
-* **accelerometer bias** (level frame, seed eq 9-14's output): the mean level-frame
-  acceleration is the sum of the accelerometer offsets and the horizon error seen
-  through gravity (``g·sin(bias)``). It is measured first on the floor before take-off
-  (motors off: no vibration, the classic calibration at rest), then refined in HOLD. The
-  estimator subtracts it, so the complementary filter's velocity (eq 15-17) is no
-  longer off by ``bias / k`` (a height offset of 2 cm on the nominal simulator for a
-  0.14 m/s² AccZ offset), and a descent without the laser integrates an unbiased AccZ;
+* **accelerometer bias** (level frame, the output of eq 9-14 of the 2011 QUT CyPhy
+  MikroKopter documentation): the mean level-frame acceleration is the sum of the
+  accelerometer offsets and the horizon error seen through gravity (``g·sin(bias)``). It is
+  measured first on the floor before take-off (motors off: no vibration, the classic
+  calibration at rest), then refined in HOLD. The estimator subtracts it, so the
+  complementary filter's velocity (eq 15-17) is not off by ``bias / k`` (a height offset of
+  2 cm on the nominal simulator for a 0.14 m/s² AccZ offset), and a descent without the
+  laser integrates an unbiased AccZ;
 * **hover gas**: the mean gas command over HOLD, normalised like the altitude loop's
-  feed-forward (``hover_gas · (V_hover / V) / (cos θ cos φ)``, seed §M) to the gas that
+  feed-forward (``hover_gas · (V_hover / V) / (cos θ cos φ)``, §M) to the gas that
   would hold the weight level at ``control.hover_voltage_v``. It is what the blind
   descent's thrust model and ``mkflight tune`` use;
 * **vibration**: the accelerometer noise per body axis, from successive differences
@@ -126,7 +127,7 @@ class AirframeLearner:
         self._hover = TimeMean(LEARN_TAU_S)
         self._noise = (TimeMean(NOISE_TAU_S), TimeMean(NOISE_TAU_S), TimeMean(NOISE_TAU_S))
         self._last: tuple[int, Vec3] | None = None  # the previous sample (t_ns, its source)
-        self._last_kind = True  # the previous sample's source was the body specific force
+        self._last_kind = True  # the previous sample's source: the body specific force
         self._steady_s = 0.0
         self._rest_s = 0.0
         self._learned: LearnedAirframe | None = None  # the last figures (None: out of date)

@@ -1,4 +1,7 @@
-"""Records the estimator hands to the logs and ``flight.json`` (seed TABLE III)."""
+"""Records the estimator hands to the logs and ``flight.json`` (TABLE III).
+
+TABLE and eq are those of the 2011 QUT CyPhy MikroKopter documentation.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +10,7 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True, slots=True)
 class LaserStep:
-    """What the 100 ms log (seed TABLE III) needs from the last accepted pose.
+    """What the 100 ms log (TABLE III) needs from the last accepted pose.
 
     ``w_vel_*`` is the laser velocity in W (eq 19), ``b_vel_*`` the same in the heading
     frame at the scan's yaw (eq 4), ``b_esti_vel_*`` the filter's current velocity in the

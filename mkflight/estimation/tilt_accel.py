@@ -1,9 +1,10 @@
 """Horizontal acceleration from the attitude, checked by the accelerometers (SPEC §3).
 
-Eq 15-16 integrate the level-frame acceleration the accelerometers give (eq 9-14). On a
-MikroKopter those carry the motors' vibration, 5-30 AccNick counts (0.08-0.49 m/s²) in
-every sample (issue 17), and the complementary filter turns it into velocity noise that
-the velocity loop flies: on the nominal simulator it is most of the hover error.
+Eq 15-16 of the 2011 QUT CyPhy MikroKopter documentation integrate the level-frame
+acceleration the accelerometers give (eq 9-14). On a MikroKopter those carry the motors'
+vibration, 5-30 AccNick counts (0.08-0.49 m/s²) in every sample, and the complementary
+filter turns it into velocity noise that the velocity loop flies: on the nominal simulator
+it is most of the hover error.
 
 The FC's attitude hardly vibrates (its angles are the output of its own filter) and, for a
 vehicle holding its height, sets the horizontal acceleration: the thrust ``g / (cos θ cos
@@ -20,7 +21,7 @@ A sample further than :data:`GATE_SIGMAS` from the expectation counts only that 
 
 Vertically the same, when the flight step gives the thrust model's acceleration
 ``g·(gas / hover_now - 1)`` (the gas commanded through the motors' lag, the hover gas
-learned in HOLD scaled like the feed-forward; seed §M): in flight, with control. Otherwise
+learned in HOLD scaled like the feed-forward; §M): in flight, with control. Otherwise
 z is the accelerometer's own.
 
 Constant offsets of ``a_model + d̂`` (the horizon's error through gravity, the

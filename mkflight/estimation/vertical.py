@@ -1,15 +1,15 @@
 """Height and vertical speed without the hat: a thrust model checked by AccZ (SPEC §3, §5).
 
-While the laser's hat gives the height, the complementary filter of eq 17 holds the
-vertical channel. When it stops (a stalled laser), the estimator can only integrate AccZ,
-and the FC's AccZ carries the motors' vibration: its integral is a random walk of
-``sigma·√(T·t)`` — 0.16 m/s after 3.3 s at 0.39 m/s² (a worn prop), enough to turn a
-0.3 m/s descent into a 0.5 m/s touchdown (issue 17).
+While the laser's hat gives the height, the complementary filter of eq 17 (§ and eq: the
+2011 QUT CyPhy MikroKopter documentation) holds the vertical channel. When it stops (a
+stalled laser), the estimator can only integrate AccZ, and the FC's AccZ carries the motors'
+vibration: its integral is a random walk of ``sigma·√(T·t)`` — 0.16 m/s after 3.3 s at 0.39
+m/s² (a worn prop), enough to turn a 0.3 m/s descent into a 0.5 m/s touchdown.
 
 The vehicle's own thrust model does not vibrate. The gas is known (it is our command) and
 the hover gas was learned in HOLD (:mod:`mkflight.estimation.learner`), so the model
 acceleration is ``a_model = g·(gas_lagged / hover_now - 1) - k_drag·v`` with
-``hover_now`` the learned hover gas scaled like the feed-forward (battery, tilt; seed §M),
+``hover_now`` the learned hover gas scaled like the feed-forward (battery, tilt; §M),
 ``gas_lagged`` the command through the motors' lag and a typical drag. What the model
 misses — gusts, the airframe's own drag, the model's error — is a disturbance ``w`` that
 AccZ measures, noisily:
@@ -17,7 +17,7 @@ AccZ measures, noisily:
     state (h, v, w):  h' = v,  v' = a_model + w,  w' = -w/τ_w + noise  (Ornstein-Uhlenbeck)
     measurement:      AccZ_up - a_model = w + n,   n ~ N(0, sigma_n²), sigma_n: the vibration
 
-a three-state Kalman filter (the "Kalman gain from measured noise" of issue 17): with a
+a three-state Kalman filter, its gain from the noise measured in flight: with a
 quiet accelerometer it follows AccZ closely, with a noisy one it leans on the model, and
 the disturbance's mean reversion keeps the noise from random-walking into the velocity.
 A sample far from what the filter expects (a jolt) is clipped (:data:`GATE_SIGMAS`). Over

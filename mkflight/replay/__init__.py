@@ -5,6 +5,7 @@ lock-step clock, :mod:`~mkflight.replay.feeder` the mock devices,
 :mod:`~mkflight.replay.daemon` the daemon as a replay runs it,
 :mod:`~mkflight.replay.compare` the determinism check, :mod:`~mkflight.replay.report`
 what a replay found, :mod:`~mkflight.replay.session` the folder and the loop run,
-:mod:`~mkflight.replay.seed` and :mod:`~mkflight.replay.seed_run` the seed's tables, and
+:mod:`~mkflight.replay.seed` and :mod:`~mkflight.replay.seed_run` the original system's
+tables (TABLE III and IV of the 2011 QUT CyPhy MikroKopter documentation), and
 :mod:`~mkflight.replay.run` puts a recorded flight's replay together.
 """

@@ -21,8 +21,8 @@ consumes (``--fast``). ``memory`` plays each port through a
 no real-time wait per chunk (``--fast``, unless ``--ptys``).
 
 A port may instead be served by an emulated device (``models``: the simulator's pure FC
-or URG model, :class:`~mkflight.sim.pty_server.EmulatedDevice`), which is how the seed's
-tables are replayed: it receives what the daemon writes at the lock-step time it was
+or URG model, :class:`~mkflight.sim.pty_server.EmulatedDevice`), which is how the original
+system's tables are replayed: it receives what the daemon writes at the lock-step time it was
 written and its replies go out at the times it says.
 """
 
@@ -124,7 +124,7 @@ class Feeder:
         self._inputs = replug_times(inputs)
         #: ports are memory devices (no ptys): see :mod:`mkflight.replay.memport`
         self.memory = memory
-        #: ports served by an emulated device (the seed tables' replay) instead of bytes
+        #: ports served by an emulated device (the original's tables' replay) instead of bytes
         self.models = dict(models or {})
         self.written: dict[str, int] = dict.fromkeys(PORTS, 0)
         self.received: dict[str, int] = dict.fromkeys(PORTS, 0)

@@ -10,7 +10,7 @@ asynchronously); here a chunk is in the daemon's queue when :meth:`MemoryDevice.
 returns, so the lock-step clock never waits in real time. ``--speed`` keeps the ptys: a
 paced replay is for watching the real serial stack work.
 
-The device behaves as the pty did, so the replay is the same byte for byte (the
+The device behaves as a pty does, so the replay is the same byte for byte (the
 determinism check holds on both paths): an unplugged device fails the open stream's
 reads and writes and refuses a new open (``PortNotFoundError``, as a vanished
 ``/dev/ttyUSB0`` does); a replug lets the next open succeed with an empty queue (the

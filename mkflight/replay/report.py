@@ -2,8 +2,8 @@
 
 :class:`ReplayReport` holds the replayed flight's own report, the determinism check
 (:class:`~mkflight.replay.compare.CommandComparison` and :class:`TableComparison`, from
-:func:`compare_tables`), the pace and what the feeder did; a replay of the seed's tables
-holds a :class:`SeedComparison` instead of the tables' check.
+:func:`compare_tables`), the pace and what the feeder did; a replay of the original
+system's tables holds a :class:`SeedComparison` instead of the tables' check.
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ class ReplayReport:
     matcher: dict[str, Any]
     warnings: list[str] = field(default_factory=list)
     start_ns: int = 0
-    #: a seed (tables only) replay: its tables against the seed's, column by column
+    #: a replay of the original system's tables alone: its tables against those, by column
     seed: SeedComparison | None = None
 
     @property
@@ -65,13 +65,13 @@ class ReplayReport:
 
     @property
     def deterministic(self) -> bool:
-        """Every command byte and every table row reproduced (never, for seed tables)."""
+        """Every command byte and every table row reproduced (never, for the original's tables)."""
         return self.seed is None and self.commands.identical and all(t.equal for t in self.tables)
 
 
 @dataclass(frozen=True, slots=True)
 class SeedComparison:
-    """A seed replay's tables against the seed's (rows paired from take-off on)."""
+    """A replay's tables against the original system's (rows paired from take-off on)."""
 
     imu_rows_played: int
     imu_rows: int

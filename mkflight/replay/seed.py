@@ -1,6 +1,7 @@
 """Replaying the original system's logs: TABLE IV as DebugOut, TABLE III as the matcher.
 
-A folder with only the seed's two tables (``imu_50ms.log``, ``laser_100ms.log``; SPEC §6)
+TABLE III and TABLE IV are those of the 2011 QUT CyPhy MikroKopter documentation. A folder
+with only the original system's two tables (``imu_50ms.log``, ``laser_100ms.log``; SPEC §6)
 has no bytes to play back, so the replay serves both ports with the simulator's pure
 device models (:class:`~mkflight.replay.feeder.Feeder` ``models``) on the lock-step clock:
 
@@ -11,16 +12,16 @@ device models (:class:`~mkflight.replay.feeder.Feeder` ``models``) on the lock-s
   (:func:`~mkflight.mk.units.analog_from_si`, the inverse of the link's conversion);
 * **URG**: the emulated URG-04LX in the simulator's room, standing on the ground at the
   first TABLE III pose and, from take-off, at the TABLE III pose of the time and at the
-  take-off height (the seed's tables have no height: the hat reads
+  take-off height (the original system's tables have no height: the hat reads
   ``control.takeoff_height_m`` while the tables last);
 * **scan matcher**: :class:`SeedMatcher` gives each scan the TABLE III pose of its time
   (row 0 before take-off, then one row per 100 ms), the hat height from the real
-  pipeline; the world frame W is the seed's.
+  pipeline; the world frame W is the original system's.
 
 The daemon's estimator and controllers run on that and write their own tables; when the
 TABLE IV rows run out the replay asks for a landing (as ``--duration`` would), the hat
 reads the vehicle coming down, and the daemon lands and releases as in flight.
-:func:`compare_seed_tables` sets the two tables side by side column by column.
+:func:`compare_columns` sets the two tables side by side column by column.
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ DESCENT_MPS = 0.3  # how the hat reads the landing after the tables end
 
 
 class SeedClock:
-    """When the seed's rows begin (the daemon's take-off) and end (the last DebugOut)."""
+    """When the original system's rows begin (the daemon's take-off) and end (the last DebugOut)."""
 
     def __init__(self, n_imu_rows: int, n_laser_rows: int) -> None:
         self.n_imu_rows = n_imu_rows
@@ -176,7 +177,7 @@ class SeedMatcher(MatcherWorker):
         roll_rad: float,
         motion_prior: Pose | None = None,
     ) -> LaserResult:
-        """The real result (height from the hat), with the seed's pose of the scan's time."""
+        """The real result (height from the hat), with TABLE III's pose of the scan's time."""
         result = await super().process(scan, pitch_rad, roll_rad, motion_prior)
         clock = self._clock
         j = clock.laser_row(scan.t_ns)
@@ -197,7 +198,7 @@ class SeedMatcher(MatcherWorker):
 
 @dataclass(frozen=True, slots=True)
 class ColumnComparison:
-    """One column of the replay's table against the seed's, over the rows both have."""
+    """One column of the replay's table against the original's, over the rows both have."""
 
     name: str
     n: int
@@ -222,7 +223,7 @@ def compare_columns(
         both = np.isfinite(a) & np.isfinite(b)
         a, b = a[both], b[both]
         n = int(a.shape[0])
-        with np.errstate(all="ignore"):  # a seed value of 1e300 overflows to inf: shown so
+        with np.errstate(all="ignore"):  # an original value of 1e300 overflows to inf: shown so
             d = a - b
             corr = math.nan
             if n > 2 and np.std(a) > 0 and np.std(b) > 0:
