@@ -7,6 +7,8 @@ elementary right-handed rotation matrices.
 
 The level (heading) frame L is the body frame with pitch and roll taken out: x forward
 along the horizontal heading, y right, z down. World W is L turned by yaw.
+
+Eq numbers are those of the 2011 QUT CyPhy MikroKopter documentation.
 """
 
 from __future__ import annotations
@@ -25,10 +27,10 @@ def wrap_pi(angle_rad: float) -> float:
 
 
 def world_to_body(x_w: float, y_w: float, yaw_rad: float) -> tuple[float, float]:
-    """Rotate a horizontal world vector into the heading frame (SPEC §1; seed eq 3-6).
+    """Rotate a horizontal world vector into the heading frame (SPEC §1; eq 3-6).
 
     ``v_B.x = cos psi * v_W.x + sin psi * v_W.y``, ``v_B.y = -sin psi * v_W.x + cos psi *
-    v_W.y``. The seed's eq 5-6 carry the opposite sign of psi because its psi is the world
+    v_W.y``. Eq 5-6 carry the opposite sign of psi because their psi is the world
     with respect to the body; psi here is the vehicle's clockwise yaw in W.
 
     Args:
@@ -69,11 +71,11 @@ def level_acceleration(
     roll_rad: float,
     g_mps2: float,
 ) -> tuple[float, float, float]:
-    """Level-frame acceleration from the body specific force (SPEC §3; seed eq 9-14 exact).
+    """Level-frame acceleration from the body specific force (SPEC §3; eq 9-14 exact).
 
-    ``a = R_y(theta) R_x(phi) f + (0, 0, g)`` in FRD (z down). The seed's eq 10, 12 and 14
-    are its one-axis cases. A vehicle at rest at any tilt reads ``f = (g sin theta,
-    -g sin phi cos theta, -g cos phi cos theta)`` and gets ``a = 0``.
+    ``a = R_y(theta) R_x(phi) f + (0, 0, g)`` in FRD (z down). Eq 10, 12 and 14 are its
+    one-axis cases. A vehicle at rest at any tilt reads
+    ``f = (g sin theta, -g sin phi cos theta, -g cos phi cos theta)`` and gets ``a = 0``.
 
     Args:
         f_x_mps2: specific force along body x (forward), m/s^2 (``ImuSample.acc_x_mps2``).

@@ -10,6 +10,7 @@ read within a step; a long lag against the closed loop's commands reads short: d
 0.2 s reads 0.23 s, because those commands are not slow against τ). Three curves, each the
 x/y mean of the normalised cross-correlation r[k] = corr(drive[t], response[t + k]) for k =
 0..``max_lag`` steps:
+
 * **acceleration** (the lag reported): the body-frame velocity of the laser (TABLE III
   ``B_Vel.x``/``B_Vel.y``) differenced to an acceleration. Tilt makes acceleration
   (a = g·tilt), so the acceleration follows the command by the response lag. Correlating

@@ -1,14 +1,16 @@
-"""Altitude control (SPEC §4; seed §K eq 25 outer, §H eq 23 inner).
+"""Altitude control (SPEC §4; §K eq 25 outer, §H eq 23 inner).
+
+§ and eq are those of the 2011 QUT CyPhy MikroKopter documentation.
 
 1. Height PID (eq 25) on ``h* - h`` (D on the measurement: ``-kd_z * vz_up``) -> climb-rate
    set-point, limited to ``+-control.max_climb_mps`` (integral within the same bound), plus
    an optional climb feed-forward from a ramping set-point.
 2. Vertical velocity PID (eq 23) on ``vz* - vz_up`` -> gas correction, integral clamped to
    ``+-control.integral_limit_gas``, anti-windup against the gas saturation.
-3. Gas = feed-forward + PID, saturated to ``[0, control.gas_max]`` (seed §K: 0..130) and
+3. Gas = feed-forward + PID, saturated to ``[0, control.gas_max]`` (§K: 0..130) and
    rounded: an unsigned byte that can never wrap.
 
-Feed-forward (seed §M: the thrust offset drifts as the pack discharges)::
+Feed-forward (§M: the thrust offset drifts as the pack discharges)::
 
     gas_ff = hover_gas * (hover_voltage_v / battery_v) / max(cos(theta) cos(phi), min_tilt_factor)
 

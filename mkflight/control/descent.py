@@ -4,23 +4,23 @@ When the failsafe lands and the hat height is gone (a stalled or unplugged laser
 FC's samples are unusable (NaN), the altitude loop of :mod:`mkflight.control.altitude`
 has nothing to hold. An open-loop fraction of a configured gas is not a landing: on an
 airframe whose hover gas is 15 % off it either drops (≈ 1.3 m/s at the floor from 0.6 m)
-or hovers until someone takes over (issue 17). :class:`Descent` lands on what the vehicle
+or hovers until someone takes over. :class:`Descent` lands on what the vehicle
 still measures, choosing per step among three sources (:class:`DescentMode`):
 
 * ``INERTIAL`` — the FC's samples are good, the height is not: the vertical velocity and
-  height are the model-aided dead reckoning of :mod:`mkflight.estimation.vertical`
-  (the thrust model with the hover gas learned in HOLD, checked by AccZ), started from
-  what the hat gave last. A PI on it (the altitude loop's inner gains, seed eq 23) holds
-  ``descent_mps`` down around the learned hover gas. The floor is found two ways: the
-  **stop** — the accelerometer's own integral rises by ``stop_fraction`` of the descent
-  speed within ``stop_window_s`` (the landing gear's deceleration, which the FC's
-  samples see) while the dead-reckoned height is below ``stop_max_height_m`` — and,
-  if no stop was seen, the **descent budget** — the dead-reckoned
-  height is ``probe_margin_m`` below the floor. Either starts a **probe**: the gas
-  falls at ``probe_rate_per_s`` of the hover gas per second; in the air that makes the
-  vehicle fall (the accelerometer's integral drops by ``fall_mps``: back to the
-  descent, the budget extended), on the floor nothing moves, and at
-  ``probe_idle_fraction`` of the hover gas the floor is confirmed.
+  height are the model-aided dead reckoning of :mod:`mkflight.estimation.vertical` (the
+  thrust model with the hover gas learned in HOLD, checked by AccZ), started from what the
+  hat gave last. A PI on it (the altitude loop's inner gains, eq 23 of the 2011 QUT CyPhy
+  MikroKopter documentation) holds ``descent_mps`` down around the learned hover gas. The
+  floor is found two ways: the **stop** — the accelerometer's own integral rises by
+  ``stop_fraction`` of the descent speed within ``stop_window_s`` (the landing gear's
+  deceleration, which the FC's samples see) while the dead-reckoned height is below
+  ``stop_max_height_m`` — and, if no stop was seen, the **descent budget** — the
+  dead-reckoned height is ``probe_margin_m`` below the floor. Either starts a **probe**: the
+  gas falls at ``probe_rate_per_s`` of the hover gas per second; in the air that makes the
+  vehicle fall (the accelerometer's integral drops by ``fall_mps``: back to the descent, the
+  budget extended), on the floor nothing moves, and at ``probe_idle_fraction`` of the hover
+  gas the floor is confirmed.
 * ``LASER`` — the FC's samples are unusable but the hat still gives a height: a PI on
   the hat height's rate, the floor where the height stays below ``floor_height_m`` for
   ``floor_still_s``.

@@ -1,10 +1,10 @@
 """Command limits (SPEC §4): tilt-norm clamp, angle -> MK counts, gas saturation.
 
-The MK takes signed bytes for nick/roll/yaw and an unsigned byte for gas. The seed's lesson
-(§K) is that a negative gas wrapped into that byte sends the vehicle up at full power, so
-every conversion here clamps first and then rounds, and refuses non-finite input with a
-``ValueError`` instead of producing a number: the controllers check finiteness before
-calling, so reaching that error is a bug, never a command.
+The MK takes signed bytes for nick/roll/yaw and an unsigned byte for gas. §K of the 2011 QUT
+CyPhy MikroKopter documentation shows that a negative gas wrapped into that byte sends the
+vehicle up at full power, so every conversion here clamps first and then rounds, and refuses
+non-finite input with a ``ValueError`` instead of producing a number: the controllers check
+finiteness before calling, so reaching that error is a bug, never a command.
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ def angle_to_counts(angle_rad: float, sign: int, counts_per_rad: float) -> int:
     """Our angle (SPEC §1) -> MK stick counts: ``sign * angle * counts_per_rad``, +-127.
 
     ``sign`` is ``mk.signs.<axis>`` (default -1: the MK's nick/roll are the negation of our
-    pitch/roll, seed §B/§C; the seed divides by the scale factor 120 counts/rad).
+    pitch/roll, §B/§C, which divide by the scale factor 120 counts/rad).
 
     Raises:
         ValueError: ``angle_rad`` is NaN or infinite.
@@ -69,7 +69,7 @@ def angle_to_counts(angle_rad: float, sign: int, counts_per_rad: float) -> int:
 
 
 def gas_to_counts(gas: float, gas_max: int) -> int:
-    """Gas -> the unsigned gas byte, saturated to ``[0, gas_max]`` (seed §K: 0..130).
+    """Gas -> the unsigned gas byte, saturated to ``[0, gas_max]`` (§K: 0..130).
 
     Never wraps: -5 gives 0, 300 gives ``gas_max``.
 

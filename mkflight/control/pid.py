@@ -1,4 +1,6 @@
-"""A small pure PID (seed eq 24-25; SPEC §4 "all PIDs").
+"""A small pure PID (eq 24-25; SPEC §4 "all PIDs").
+
+Eq 24-25 are those of the 2011 QUT CyPhy MikroKopter documentation.
 
 * Derivative on the measurement, not on the error, so a set-point step never kicks the
   output: ``d = -kd * dmeasurement/dt`` (or ``-kd * rate`` when the caller has a measured
@@ -94,7 +96,7 @@ def pid_update(
     rate: float | None = None,
     feedforward: float = 0.0,
 ) -> PidResult:
-    """Advance one PID step (seed eq 24-25 with derivative on measurement).
+    """Advance one PID step (eq 24-25 with derivative on measurement).
 
     Args:
         gains: the loop's gains and limits.

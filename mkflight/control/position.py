@@ -1,4 +1,6 @@
-"""Horizontal position control (SPEC §4; seed §C eq 1-6, §H eq 21-22).
+"""Horizontal position control (SPEC §4; §C eq 1-6, §H eq 21-22).
+
+§ and eq are those of the 2011 QUT CyPhy MikroKopter documentation.
 
 Cascade, like PX4's ``PositionControl``:
 
@@ -9,7 +11,7 @@ Cascade, like PX4's ``PositionControl``:
    acceleration in W, each axis limited to ``g * max_tilt_rad`` (the anti-windup bound);
 3. W -> heading frame B by yaw (``frames.world_to_body``, SPEC §1:
    ``a_B.x = cos psi a_W.x + sin psi a_W.y``, ``a_B.y = -sin psi a_W.x + cos psi a_W.y``;
-   the seed's eq 5-6 use the opposite psi);
+   eq 5-6 use the opposite psi);
 4. tilt (small angle): pitch ``theta* = -a_x / g`` (FRD: to accelerate forward the nose
    goes down, i.e. negative pitch), roll ``phi* = a_y / g`` (right side down to go right);
 5. the tilt VECTOR's norm is clamped to ``control.max_tilt_rad`` (direction kept);

@@ -1,10 +1,11 @@
-"""Yaw hold (SPEC §4; seed §J eq 24): PID on the wrapped heading error -> MK yaw counts.
+"""Yaw hold (SPEC §4; §J eq 24): PID on the wrapped heading error -> MK yaw counts.
 
-The MK's yaw input is a RATE stick, so the PID's output is a rate command in counts
-(``kp_yaw`` counts/rad). Our psi is clockwise (nose right positive) and the MK's yaw the
-opposite (SPEC §1), hence ``counts = mk.signs.yaw * u`` with the default sign -1. The error
-``wrap_pi(psi* - psi)`` takes the short way round (179 deg vs -179 deg is -2 deg), and the
-derivative wraps the measurement's step too, so crossing +-pi never kicks.
+§J and eq 24 are those of the 2011 QUT CyPhy MikroKopter documentation. The MK's yaw input
+is a RATE stick, so the PID's output is a rate command in counts (``kp_yaw`` counts/rad).
+Our psi is clockwise (nose right positive) and the MK's yaw the opposite (SPEC §1), hence
+``counts = mk.signs.yaw * u`` with the default sign -1. The error ``wrap_pi(psi* - psi)``
+takes the short way round (179 deg vs -179 deg is -2 deg), and the derivative wraps the
+measurement's step too, so crossing +-pi never kicks.
 """
 
 from __future__ import annotations

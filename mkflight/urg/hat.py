@@ -1,7 +1,8 @@
-"""Height from the laser hat (SPEC §2-3, seed §K eq 26): robust, or no height at all.
+"""Height from the laser hat (SPEC §2-3, §K eq 26): robust, or no height at all.
 
-A mirror folds the steps ``laser.hat_steps`` (default 44-127) down to the floor. Each of
-them measures the slant distance to the floor; the height is
+§K and eq 26 are those of the 2011 QUT CyPhy MikroKopter documentation. A mirror folds the
+steps ``laser.hat_steps`` (default 44-127) down to the floor. Each of them measures the
+slant distance to the floor; the height is
 
     height = cos(pitch) * cos(roll) * range - hat_offset_m        (eq 26)
 
@@ -71,7 +72,7 @@ def hat_height(
         ranges_m: the ranges of the hat steps only, in metres; NaN for error codes.
         pitch_rad: pitch at the time of the scan (SPEC §1).
         roll_rad: roll at the time of the scan.
-        settings: thresholds; the defaults match the URG-04LX and the seed's hat.
+        settings: thresholds; the defaults match the URG-04LX and the original system's hat.
 
     Returns:
         The height and how it was obtained, or an invalid result with the reason.
