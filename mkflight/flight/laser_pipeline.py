@@ -6,10 +6,11 @@ where it runs (in-process, or in a worker process: :mod:`mkflight.flight.matcher
 
 Per scan:
 
-* **Height** from the hat steps (``laser.hat_steps``) by :func:`~mkflight.urg.hat.hat_height`
-  (SPEC eq 26, with the pitch and roll at the scan's time), or ``None`` with the reason.
-  An unknown attitude (the FC sends NaN) is taken as level: then the flight step lands
-  on the hat alone, level, and a 0.1 rad tilt would read only 0.5 % high.
+* **Height** from the hat steps (``laser.hat_steps``) by
+  :func:`~mkflight.urg.hat.hat_height` (eq 26 of the 2011 QUT CyPhy MikroKopter
+  documentation, with the pitch and roll at the scan's time), or ``None`` with the reason.
+  An unknown attitude (the FC sends NaN) is taken as level: then the flight step lands on
+  the hat alone, level, and a 0.1 rad tilt would read only 0.5 % high.
 * **Points** from the scan steps (``laser.scan_steps``): step ``s`` is at body angle
   ``b = -(s - 384)·2π/1024`` (right positive, SPEC §2). Each beam is rotated into the level
   (heading) frame by ``R_y(θ) R_x(φ)`` -- the rotation of SPEC §3 -- and its horizontal

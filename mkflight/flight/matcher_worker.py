@@ -15,7 +15,7 @@ serialises the numpy glue. :class:`MatcherWorker` therefore runs
 * the pipeline's state (keyframes, velocity) lives in the worker; per scan the loop thread
   only queues the call, and the executor's manager and feeder threads pickle the ~5.6 kB
   scan, do the pipe I/O and unpickle the small result. Those threads share the GIL with the
-  loop: queuing a call held the loop 0.14 ms median, 0.7 ms p99 on the 2-vCPU development
+  loop: queuing a call holds the loop 0.14 ms median, 0.7 ms p99 on a 2-vCPU development
   VM, against the 1.3-2.4 ms a match holds it inline;
 * :meth:`MatcherWorker.start` warms the worker up (imports, a two-scan dummy match on a
   throw-away pipeline), so the first real scan is not slow, and reports how long it took;

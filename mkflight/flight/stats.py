@@ -39,7 +39,7 @@ class Ring:
     """The newest :data:`KEEP` integer samples in a buffer allocated once.
 
     A ``deque`` of Python ints allocates an object per step and grows for the first
-    17 minutes of a flight; this does neither, so a soak's memory is flat from the start.
+    17 minutes of a flight; this does neither, so a long run's memory is flat from the start.
     """
 
     __slots__ = ("_buf", "_n")

@@ -5,7 +5,8 @@ and timestamps in, values out, no I/O and no clock reads. Two entry points, one 
 
 * :meth:`FlightCore.laser_step` (100 ms): a scan-matched pose and a hat height, stamped with
   the time the scan was TAKEN, go into the estimator (which re-propagates from then);
-  returns the TABLE III row.
+  returns the TABLE III row (TABLE III and IV: the 2011 QUT CyPhy MikroKopter
+  documentation).
 * :meth:`FlightCore.imu_step` (each DebugOut, ~53 ms): the IMU sample updates the
   estimate; the failsafe judges the health of every input; the flight phases give the
   set-point; the controllers give the command. Returns the command to send (always within

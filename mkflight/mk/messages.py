@@ -1,9 +1,9 @@
 """The MikroKopter messages mkflight uses: pure encoders and decoders (``mk-serial.md`` §4-6).
 
 Each message is a frozen record with ``encode()`` (bytes of a complete frame) and, for
-answers, ``decode(frame)``. Outgoing fields are range-checked and never wrapped: the
-seed's lesson is that a negative gas wrapped into an unsigned byte sends the vehicle up at
-full power (seed §K), so :meth:`ExternControl.pack` raises instead.
+answers, ``decode(frame)``. Outgoing fields are range-checked and never wrapped: a
+negative gas wrapped into an unsigned byte sends the vehicle up at full power (§K of the
+2011 QUT CyPhy MikroKopter documentation), so :meth:`ExternControl.pack` raises instead.
 """
 
 from __future__ import annotations
