@@ -34,6 +34,7 @@ from fuzz_urg import (
     scip_status,
 )
 
+from mkflight.conversions import MM_PER_M
 from mkflight.errors import CommandRangeError, LinkError
 from mkflight.io.pty import PtyDevice
 from mkflight.io.serial import open_serial
@@ -344,7 +345,7 @@ async def run_urg_driver(
             await wire.send(rng, unit.data)
             units += 1
             scan = await driver.next_scan(timeout_s=2.0)
-            ranges = np.where((values >= 20) & (values <= 5600), values / 1000.0, np.nan)
+            ranges = np.where((values >= 20) & (values <= 5600), values / MM_PER_M, np.nan)
             scans += scan.first_step == 44 and np.array_equal(scan.ranges_m, ranges, equal_nan=True)
             result.tried += tried
             advance(tried)

@@ -21,9 +21,9 @@ from collections.abc import AsyncIterator
 
 import numpy as np
 
-from mkflight.clock import NS_PER_S
 from mkflight.commands.interrupt import next_or_stop, stop_on_signals
 from mkflight.config import Config, load_config
+from mkflight.conversions import NS_PER_S
 from mkflight.io.serial import open_serial
 from mkflight.msgs import Scan
 from mkflight.urg.driver import UrgDriver, settings_from_config

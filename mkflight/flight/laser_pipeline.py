@@ -41,6 +41,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mkflight.config import Config
+from mkflight.conversions import NS_PER_S
 from mkflight.msgs import Pose2D, Scan
 from mkflight.scanmatch.geometry import FloatArray, Pose, wrap_angle
 from mkflight.scanmatch.icp import icp_params_from_config
@@ -62,8 +63,6 @@ MAX_DT_S = 1.0
 #: A motion prior beyond these is not a motion between two scans: it is ignored.
 MAX_PRIOR_STEP_M = 2.0
 MAX_PRIOR_TURN_RAD = math.pi
-#: Nanoseconds per second (``t_ns`` differences to ``dt_s``).
-_NS_PER_S = 1e9
 
 IntArray = npt.NDArray[np.int64]
 
@@ -288,7 +287,7 @@ class LaserPipeline:
 
         dt_s = None
         if self._prev_t_ns is not None:
-            dt_s = (scan.t_ns - self._prev_t_ns) / _NS_PER_S
+            dt_s = (scan.t_ns - self._prev_t_ns) / NS_PER_S
             dt_s = dt_s if MIN_DT_S <= dt_s <= MAX_DT_S else None
         self._prev_t_ns = scan.t_ns
         prior = _usable_prior(motion_prior)

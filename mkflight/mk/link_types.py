@@ -5,12 +5,12 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 
-from mkflight.clock import NS_PER_S
 from mkflight.config import Config
+from mkflight.conversions import NS_PER_MS
 from mkflight.io.stream import Opener, Tap
 from mkflight.mk.codec import ParserStats
 
-__all__ = ["NS_PER_S", "LinkSettings", "LinkStats", "Opener", "Tap"]
+__all__ = ["LinkSettings", "LinkStats", "Opener", "Tap"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -85,7 +85,7 @@ class LinkStats:
     def summary(self) -> dict[str, int | float | None]:
         """Flat counters for logs and ``flight.json``."""
         rtts = sorted(self.rtt_ns)
-        median = rtts[len(rtts) // 2] / 1e6 if rtts else None
+        median = rtts[len(rtts) // 2] / NS_PER_MS if rtts else None
         return {
             "bytes_in": self.parser.bytes_in,
             "frames_in": self.parser.frames,

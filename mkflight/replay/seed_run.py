@@ -11,6 +11,7 @@ import numpy as np
 
 from mkflight.config import load_config
 from mkflight.control.phases import Phase
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import ReplayError
 from mkflight.flight.app import FlightOptions
 from mkflight.flight.step import ImuStepOutput
@@ -37,12 +38,12 @@ from mkflight.replay.session import out_dir_for, run_lockstep
 from mkflight.replay.vloop import VirtualClock
 from mkflight.safety.failsafe import StopRequest
 
-SEED_START_NS = 1_000 * 1_000_000_000  # a seed replay's lock-step clock starts here (any)
+SEED_START_NS = 1_000 * NS_PER_S  # a seed replay's lock-step clock starts here (any)
 #: The tables start at take-off; a daemon still on the ground this long after the start
 #: never takes off (e.g. TABLE III's first pose is NaN or far outside the room: no valid
 #: fix), and the replay, which would otherwise run on forever, ends (one normally takes
 #: off about 2.5 s in).
-TAKEOFF_TIMEOUT_NS = 30 * 1_000_000_000
+TAKEOFF_TIMEOUT_NS = 30 * NS_PER_S
 
 
 def is_seed_folder(folder: Path) -> bool:
@@ -160,7 +161,7 @@ def replay_seed(
             and clock.now_ns() > SEED_START_NS + TAKEOFF_TIMEOUT_NS
         ):
             app.request_stop(
-                StopRequest.DURATION, f"no take-off in {TAKEOFF_TIMEOUT_NS // 1_000_000_000} s"
+                StopRequest.DURATION, f"no take-off in {TAKEOFF_TIMEOUT_NS // NS_PER_S} s"
             )
 
     app.on_step = on_step
@@ -169,7 +170,7 @@ def replay_seed(
     wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
     if seed_clock.start_ns is None:
         warnings.append(
-            f"the replayed daemon did not take off within {TAKEOFF_TIMEOUT_NS / 1e9:.0f} s: "
+            f"the replayed daemon did not take off within {TAKEOFF_TIMEOUT_NS / NS_PER_S:.0f} s: "
             f"no TABLE IV row was played (is {folder / 'laser_100ms.log'}'s first pose valid?)"
         )
     elif fc.rows_sent < len(imu_seed):
@@ -185,7 +186,7 @@ def replay_seed(
         tables=[],
         overrides=overrides,
         rematch=True,
-        recorded_s=(clock.now_ns() - SEED_START_NS) / 1e9,
+        recorded_s=(clock.now_ns() - SEED_START_NS) / NS_PER_S,
         wall_s=wall_s,
         cpu_s=cpu_s,
         feed=feeder.stats,

@@ -56,6 +56,7 @@ from typing import Final
 import numpy as np
 
 from mkflight.config import SimConfig
+from mkflight.conversions import MIN_PER_H
 from mkflight.sim.battery import LIPO_OCV_V
 from mkflight.sim.vehicle import VehicleParams
 
@@ -157,7 +158,7 @@ def battery_for(start_v: float, sag_v: float, params: VehicleParams) -> tuple[fl
     """
     soc0 = _soc_of(start_v / params.battery_cells)
     soc1 = _soc_of((start_v - sag_v) / params.battery_cells)
-    drawn_ah = (params.hover_current_a + params.avionics_current_a) * SAG_MINUTES / 60.0
+    drawn_ah = (params.hover_current_a + params.avionics_current_a) * SAG_MINUTES / MIN_PER_H
     capacity = drawn_ah / max(soc0 - soc1, 1e-3)
     return capacity, capacity * (1.0 - soc0)
 

@@ -45,9 +45,9 @@ from typing import Final
 
 import numpy as np
 
-from mkflight.clock import NS_PER_S
 from mkflight.config import Config
 from mkflight.control.phases import Phase, PhaseRequests
+from mkflight.conversions import NS_PER_S, US_PER_S
 from mkflight.flight.step import PilotSticks
 from mkflight.logs.flight_json import with_summary, write_flight_json
 from mkflight.mk.messages import DebugOut
@@ -303,7 +303,7 @@ def run_hover(
         hold_s=hold_ns / NS_PER_S,
         end=end,
         failsafes=list(core.counters.failsafe_events),
-        cpu_us_per_step=(time.process_time() - cpu0) / max(steps, 1) * 1e6,
+        cpu_us_per_step=(time.process_time() - cpu0) / max(steps, 1) * US_PER_S,
         max_height_m=vehicle.max_height_m,
         final_height_m=vehicle.state.height_m,
         released=not core.last_command.take_control,

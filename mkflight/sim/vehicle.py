@@ -56,6 +56,7 @@ import math
 
 import numpy as np
 
+from mkflight.conversions import S_PER_H
 from mkflight.frames import wrap_pi
 from mkflight.sim.battery import current_a, open_circuit_segment, open_circuit_v
 from mkflight.sim.gusts import CHUNK_POINTS, GRID_S, GustSeries, gust_series, gusts_at
@@ -402,7 +403,7 @@ def _integrate(
         # current_a(): avionics + motors at (T/W)^1.5, constant power
         ratio = thrust / weight if thrust > 0.0 else 0.0
         amps = avionics_a + hover_a * ratio * math.sqrt(ratio) * hover_v / max(volts, 0.1 * hover_v)
-        used += amps * h / 3600.0
+        used += amps * h / S_PER_H
         if used > ocv_until:  # the next segment of the LiPo curve
             ocv, ocv_slope, ocv_until = open_circuit_segment(used, params)
             ocv_from = used

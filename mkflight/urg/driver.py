@@ -32,6 +32,7 @@ import contextlib
 import structlog
 
 from mkflight.clock import Clock, MonotonicClock
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import LinkError, ProtocolError
 from mkflight.io.reopen import open_with_backoff
 from mkflight.io.stream import ByteStream, Opener, Tap, resolve_waiter
@@ -39,7 +40,7 @@ from mkflight.msgs import Scan
 from mkflight.urg.codec import md_command, scip2_command, simple_command, tm_command
 from mkflight.urg.driver_types import UrgInfo, UrgSettings, UrgStats, settings_from_config
 from mkflight.urg.replies import InfoReply, Reply, ReplyParser, ScanReply
-from mkflight.urg.stamping import NS_PER_S, ScanStamper
+from mkflight.urg.stamping import ScanStamper
 from mkflight.urg.units import URG_04LX, SensorParams, parse_params
 
 __all__ = ["UrgDriver", "UrgInfo", "UrgSettings", "UrgStats", "settings_from_config"]
