@@ -44,7 +44,6 @@ from mkflight.config import Config
 from mkflight.conversions import NS_PER_S
 from mkflight.msgs import Pose2D, Scan
 from mkflight.scanmatch.geometry import FloatArray, Pose, wrap_angle
-from mkflight.scanmatch.icp import icp_params_from_config
 from mkflight.scanmatch.keyframe import KeyframeMatcher
 from mkflight.urg.hat import HatSettings, hat_height
 from mkflight.urg.units import URG_04LX
@@ -206,18 +205,13 @@ class LaserPipeline:
     def __init__(self, cfg: Config) -> None:
         self._laser = cfg.laser
         self._scanmatch = cfg.scanmatch
-        self._params = icp_params_from_config(cfg.scanmatch)
         self._hat = HatSettings(offset_m=cfg.laser.hat_offset_m, min_range_m=cfg.laser.min_range_m)
         self._matcher = self._new_matcher()
         self._prev_t_ns: int | None = None
         self._have_reference = False
 
     def _new_matcher(self) -> KeyframeMatcher:
-        return KeyframeMatcher(
-            self._params,
-            keyframe_distance_m=self._scanmatch.keyframe_distance_m,
-            keyframe_angle_rad=self._scanmatch.keyframe_angle_rad,
-        )
+        return KeyframeMatcher(self._scanmatch)
 
     def reset(self) -> None:
         """Forget every keyframe: the next valid scan defines a new world frame W (a new flight)."""
