@@ -76,6 +76,21 @@ class LaserConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_on
     max_range_m: PosFloat = 5.6
     transport_delay_s: Annotated[float, Meta(ge=0, le=0.5)] = 0.03
     stall_s: Annotated[float, Meta(gt=0, le=5)] = 0.3
+    """No scan for this long: QT, drain, re-issue MD (``scip2.md`` §6)."""
+    request_timeout_s: Annotated[float, Meta(gt=0, le=10)] = 1.0
+    """Longest wait for the answer to one request."""
+    drain_silence_s: Annotated[float, Meta(gt=0, le=1)] = 0.15
+    """After QT, the sensor is quiet once it sent nothing for this long..."""
+    drain_max_s: Annotated[float, Meta(gt=0, le=10)] = 1.0
+    """... waiting at most this long for it."""
+    max_restarts: Annotated[int, Meta(ge=0, le=100)] = 5
+    """MD re-issued this many times in a row without a good scan: the sensor failed."""
+    sum_error_run: Annotated[int, Meta(ge=1, le=100)] = 3
+    """This many scans in a row with a bad sum re-issue MD."""
+    reopen_backoff_s: Annotated[float, Meta(gt=0, le=10)] = 0.1
+    """First wait before re-opening a vanished port, doubling..."""
+    reopen_backoff_max_s: Annotated[float, Meta(gt=0, le=60)] = 2.0
+    """... up to this."""
 
 
 class EstimationConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -386,9 +401,14 @@ def _cross_checks(cfg: Config, source: str) -> None:
     if cfg.scanmatch.min_correspondence_m > cfg.scanmatch.max_correspondence_m:
         msg = f"{source}: scanmatch.min_correspondence_m: above max_correspondence_m"
         raise ConfigError(msg)
-    if cfg.mk.reopen_backoff_s > cfg.mk.reopen_backoff_max_s:
-        msg = f"{source}: mk.reopen_backoff_s: must not exceed mk.reopen_backoff_max_s"
-        raise ConfigError(msg)
+    for section in ("mk", "laser"):
+        backoff = getattr(cfg, section)
+        if backoff.reopen_backoff_s > backoff.reopen_backoff_max_s:
+            msg = (
+                f"{source}: {section}.reopen_backoff_s: must not exceed "
+                f"{section}.reopen_backoff_max_s"
+            )
+            raise ConfigError(msg)
 
 
 def config_from_dict(data: Any, source: str = "config") -> Config:

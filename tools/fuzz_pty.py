@@ -34,6 +34,7 @@ from fuzz_urg import (
     scip_status,
 )
 
+from mkflight.config import LaserConfig
 from mkflight.conversions import MM_PER_M
 from mkflight.errors import CommandRangeError, LinkError
 from mkflight.io.pty import PtyDevice
@@ -42,7 +43,7 @@ from mkflight.mk.codec import Frame, FrameParser
 from mkflight.mk.link import LinkSettings, MkLink
 from mkflight.mk.messages import FORBIDDEN_COMMANDS, Confirm, ExternControl
 from mkflight.mk.units import DEFAULT_CALIBRATION, imu_from_debug
-from mkflight.urg.driver import UrgDriver, UrgSettings
+from mkflight.urg.driver import UrgDriver
 
 
 # ================================================================= the device end of a pty
@@ -317,7 +318,7 @@ async def run_urg_driver(
     wire, totals = Wire(device), Totals()
     sensor = ScriptedUrg(wire, totals)
     sensor_task = asyncio.create_task(sensor.run())
-    driver = UrgDriver(await open_serial(device.path, 115200), UrgSettings(), tap=wire.tap)
+    driver = UrgDriver(await open_serial(device.path, 115200), LaserConfig(), tap=wire.tap)
     units = scans = stale = 0
     stamp = rng.randrange(1 << 24)
     try:

@@ -64,7 +64,7 @@ from mkflight.sim.lockstep import (
 )
 from mkflight.sim.truth import TruthLog
 from mkflight.sim.vehicle import Sticks
-from mkflight.urg.driver import settings_from_config
+from mkflight.urg.driver import streamed_steps
 
 SETTLE_S: Final = 3.0  # precision counts from this long after HOLD begins
 LAND_MARGIN_S: Final = 5.0  # time allowed after the duration to land
@@ -198,7 +198,7 @@ def run_hover(
     log_dir.mkdir(parents=True, exist_ok=True)
     flight = FlightSide(cfg, log_dir, height_m=height_m, scans=scans)
     core = flight.core
-    steps_asked = settings_from_config(cfg.laser)  # the driver's MD request (flight side)
+    steps_asked = streamed_steps(cfg.laser)  # the driver's MD request (flight side)
     params = airframe_from_config(cfg.sim)
     airframe = {"kind": cfg.sim.airframe, "seed": cfg.sim.seed, **describe(params)}
     try:
@@ -210,7 +210,7 @@ def run_hover(
         cfg.sim,
         seed=seed,
         scans=scans,
-        scan_steps=(steps_asked.first_step, steps_asked.last_step),
+        scan_steps=steps_asked,
         truth=truth,
         params=params,
     )
