@@ -201,10 +201,11 @@ async def host_mkflight(path: str, ready: Any, samples: int) -> float:
 
     Returns the process CPU time per sample after the warm-up, in microseconds.
     """
+    from mkflight.config import Config
     from mkflight.io.serial import open_serial
 
     stream = await open_serial(path, 57600)
-    link = MkLink(stream, LinkSettings(), DEFAULT_CALIBRATION)
+    link = MkLink(stream, LinkSettings.from_config(Config()), DEFAULT_CALIBRATION)
     link.start()
     ready.set()
     cpu0 = 0.0

@@ -34,7 +34,7 @@ from fuzz_urg import (
     scip_status,
 )
 
-from mkflight.config import LaserConfig
+from mkflight.config import Config, LaserConfig
 from mkflight.conversions import MM_PER_M
 from mkflight.errors import CommandRangeError, LinkError
 from mkflight.io.pty import PtyDevice
@@ -186,7 +186,7 @@ async def run_mk_link(n: int, rng: random.Random, advance: Advance = lambda k: N
     """``n`` frame pieces through a real MkLink on a pty, a valid DebugOut in every unit."""
     result = PassResult("MK link (pty)")
     started = time.perf_counter()
-    settings = LinkSettings()
+    settings = LinkSettings.from_config(Config())
     device = PtyDevice("fuzz-fc")
     wire = Wire(device)
     sink = CommandSink(device, settings)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from mkflight.config import Config, SimFcConfig
+from mkflight.config import Config, MkConfig, SimFcConfig
 from mkflight.errors import LinkError
 from mkflight.io.serial import open_serial
 from mkflight.io.stream import ByteStream
@@ -119,7 +119,9 @@ async def test_silence_then_recovery(emulator: FcEmulator) -> None:
 
 
 async def test_unplug_and_replug_with_reopen(emulator: FcEmulator) -> None:
-    settings = LinkSettings(reopen_backoff_s=0.05, reopen_backoff_max_s=0.2)
+    settings = LinkSettings.from_config(
+        Config(mk=MkConfig(reopen_backoff_s=0.05, reopen_backoff_max_s=0.2))
+    )
     failed = asyncio.Event()
     link = await open_link(emulator, settings, failed)
     await link.next_sample(timeout_s=1.0)
