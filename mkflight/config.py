@@ -25,6 +25,8 @@ PosFloat = Annotated[float, Meta(gt=0)]
 NonNegFloat = Annotated[float, Meta(ge=0)]
 Gain = Annotated[float, Meta(ge=0, le=1000)]
 Step = Annotated[int, Meta(ge=0, le=1080)]
+TrimRad = Annotated[float, Meta(ge=-0.2, le=0.2)]
+AccBias = Annotated[float, Meta(ge=-2, le=2)]
 
 
 class MkSigns(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -242,36 +244,107 @@ class SimVehicleConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, 
     simulator reads nothing of ``mk``, ``control`` or the flight code's calibration. The
     defaults are SPEC §8's nominal airframe; ``hover_gas`` (104) differs from
     ``control.hover_gas`` (100, the controller's feed-forward) on purpose, as a real airframe
-    does from its tuning. ``sim.airframe: random`` ignores this section and draws every
-    constant from the envelope (``mkflight.sim.airframe.ENVELOPE``).
+    does from its tuning, and the MK's conventions (signs, accelerometer scales) are the
+    FC's facts, written here independently of ``mk``'s copy. ``sim.airframe: random``
+    draws the envelope's constants (``mkflight.sim.airframe.ENVELOPE``) and takes the
+    others from these defaults, not from this section.
     """
 
     mass_kg: Annotated[float, Meta(gt=0, le=20)] = 1.04
+    """All up (the 2011 QUT CyPhy MikroKopter documentation, §L: 1,040 g)."""
+    g_mps2: Annotated[float, Meta(ge=9.7, le=9.9)] = 9.81
     hover_gas: Annotated[float, Meta(gt=0, le=255)] = 104.0
+    """The gas that holds the weight at ``hover_voltage_v``."""
     hover_voltage_v: Annotated[float, Meta(gt=0, le=60)] = 11.8
+    gas_max_counts: Annotated[float, Meta(gt=0, le=255)] = 255.0
+    """The FC's gas is an unsigned char."""
     counts_per_rad: Annotated[float, Meta(gt=0, le=1000)] = 120.0
+    """The FC's attitude loop: stick counts per radian."""
+    nick_sign: Sign = -1
+    """The MK: angle = sign x counts / counts_per_rad (+ nick: nose down)."""
+    roll_sign: Sign = -1
+    yaw_sign: Sign = -1
+    max_tilt_rad: Annotated[float, Meta(gt=0, le=1.6)] = 1.0
+    """The FC's attitude loop never commands more."""
     yaw_rate_radps_per_count: Annotated[float, Meta(gt=0, le=1)] = 0.02
+    """The yaw stick is a rate: 40 counts -> 0.8 rad/s."""
     yaw_drift_radps: Annotated[float, Meta(ge=-1, le=1)] = 0.0
+    """Yaw rate with the yaw stick at neutral (clockwise +)."""
     attitude_delay_s: Annotated[float, Meta(ge=0, le=1)] = 0.1
+    """The attitude response's pure delay (the documentation, §F)..."""
     attitude_tau_s: Annotated[float, Meta(gt=0, le=2)] = 0.1
+    """... and first-order lag."""
     gas_tau_s: Annotated[float, Meta(gt=0, le=1)] = 0.05
-    drag_linear_per_s: Annotated[float, Meta(ge=0, le=5)] = 0.3
+    """Motors + ESCs: gas -> thrust lag."""
     ground_effect: Annotated[float, Meta(ge=0, le=1)] = 0.0
+    """Extra thrust on the floor (0.15: +15 %), fading with height."""
+    ground_effect_height_m: Annotated[float, Meta(gt=0, le=1)] = 0.1
+    """The rotors' height above the floor when landed."""
+    gear_sag_m: Annotated[float, Meta(gt=0, le=0.1)] = 0.008
+    """Landing gear: static compression with the motors off (sets the stiffness)."""
+    gear_compression_zeta: Annotated[float, Meta(gt=0, le=20)] = 0.3
+    """Damping ratio while compressing: a ~40 ms stop."""
+    gear_rebound_zeta: Annotated[float, Meta(gt=0, le=20)] = 6.0
+    """Damping ratio while extending: no bounce."""
+    gear_friction: Annotated[float, Meta(ge=0, le=2)] = 0.6
+    """Coulomb friction coefficient on the floor."""
+    drag_linear_per_s: Annotated[float, Meta(ge=0, le=5)] = 0.3
+    """k1 of the drag ``k1 v + k2 |v| v`` per unit mass."""
+    drag_quadratic_per_m: Annotated[float, Meta(ge=0, le=5)] = 0.1
+    """k2 of the same."""
     gusts: bool = True
     wind_std_mps: Annotated[float, Meta(ge=0, le=5)] = 0.1
+    """Ornstein-Uhlenbeck wind velocity, horizontal (half of it vertical), through the drag."""
     wind_tau_s: Annotated[float, Meta(gt=0, le=60)] = 2.0
     gust_accel_std_mps2: Annotated[float, Meta(ge=0, le=5)] = 0.0
+    """Ornstein-Uhlenbeck disturbance acceleration, horizontal (turbulence)..."""
+    gust_accel_z_ratio: Annotated[float, Meta(ge=0, le=5)] = 0.4
+    """... vertical, as a fraction of that."""
     gust_tau_s: Annotated[float, Meta(gt=0, le=60)] = 1.0
     trim_std_rad: Annotated[float, Meta(ge=0, le=0.2)] = 0.005
+    """Attitude trim per flight and axis, seeded (normal)."""
+    trim_rad: tuple[TrimRad, TrimRad] = (0.0, 0.0)
+    """The fixed angle bias (pitch, roll) of this FC."""
     acc_bias_std_mps2: Annotated[float, Meta(ge=0, le=2)] = 0.05
+    """Accelerometer bias per flight and axis, seeded (normal)."""
+    acc_bias_mps2: tuple[AccBias, AccBias, AccBias] = (0.0, 0.0, 0.0)
+    """The fixed accelerometer bias (x, y, z) of this FC."""
     vibration_std_mps2: Annotated[float, Meta(ge=0, le=5)] = 0.2
+    """Motor vibration left in the FC-averaged x/y accelerations at hover."""
     vibration_z_ratio: Annotated[float, Meta(ge=0, le=5)] = 1.0
+    """... on AccZ, as a fraction of that."""
+    angle_noise_std_rad: Annotated[float, Meta(ge=0, le=0.1)] = 0.002
+    acc_nick_counts_per_g: PosFloat = 606.3
+    """The FC's accelerometer as it is (``mk-serial.md`` §6; SPEC §1)."""
+    acc_roll_counts_per_g: PosFloat = 603.44
+    acc_z_counts_per_mps2: PosFloat = 15.5
+    acc_z_offset_mps2: float = 9.8
+    battery_cells: Annotated[int, Meta(ge=1, le=12)] = 3
+    """The documentation, §M: 3 cells, 2200 mAh."""
     battery_capacity_ah: Annotated[float, Meta(gt=0, le=50)] = 2.2
     battery_used_ah: Annotated[float, Meta(ge=0, le=50)] = 0.0
+    """Already drawn at take-off."""
+    battery_resistance_ohm: Annotated[float, Meta(ge=0, le=1)] = 0.05
+    """Pack + wiring."""
+    hover_current_a: Annotated[float, Meta(gt=0, le=100)] = 6.8
+    """The documentation, §L: 4 x 1.7 A."""
+    avionics_current_a: Annotated[float, Meta(ge=0, le=20)] = 0.5
+    """The documentation, §L: Gumstix, laser, hub."""
+    battery_noise_std_v: Annotated[float, Meta(ge=0, le=1)] = 0.02
     laser_extra_delay_s: Annotated[float, Meta(ge=0, le=0.5)] = 0.0
+    """The URG's data is this much older than the driver's ``transport_delay_s`` says."""
     laser_jitter_s: Annotated[float, Meta(ge=0, le=0.1)] = 0.0
+    """USB jitter per URG reply, uniform 0..this."""
     debug_jitter_ticks: Annotated[int, Meta(ge=0, le=50)] = 0
+    """The FC's main loop sends DebugOut up to this many 1.024 ms ticks late..."""
     debug_late_fraction: Annotated[float, Meta(ge=0, le=0.5)] = 0.0
+    """... and this share of DebugOuts 5-25 ms late."""
+    hat_steps: tuple[Step, Step] = (44, 127)
+    """URG steps the laser hat's mirror folds down to the floor, as built on this airframe."""
+    mirror_edge_last_step: Step = 149
+    """Steps after the hat up to this one see the mirror's edge."""
+    hat_offset_m: Annotated[float, Meta(ge=0, le=1)] = 0.05
+    """The hat's range on the floor minus the height (standing on the floor: 0)."""
 
 
 class SimConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -387,10 +460,14 @@ def _dotted(msgspec_path: str) -> str:
 
 def _cross_checks(cfg: Config, source: str) -> None:
     """Rules that span fields, which a per-field range cannot express."""
-    for key in ("scan_steps", "hat_steps"):
-        lo, hi = getattr(cfg.laser, key)
+    step_ranges = {
+        "laser.scan_steps": cfg.laser.scan_steps,
+        "laser.hat_steps": cfg.laser.hat_steps,
+        "sim.vehicle.hat_steps": cfg.sim.vehicle.hat_steps,
+    }
+    for key, (lo, hi) in step_ranges.items():
         if lo > hi:
-            msg = f"{source}: laser.{key}: first step {lo} is after last step {hi}"
+            msg = f"{source}: {key}: first step {lo} is after last step {hi}"
             raise ConfigError(msg)
     if cfg.safety.land_voltage_v > cfg.safety.warn_voltage_v:
         msg = f"{source}: safety.land_voltage_v: must not exceed safety.warn_voltage_v"

@@ -41,6 +41,7 @@ from typing import Final, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from mkflight.config import SimVehicleConfig
 from mkflight.conversions import MM_PER_M
 from mkflight.sim.vehicle import VehicleParams
 from mkflight.urg.units import URG_04LX, SensorParams
@@ -102,7 +103,7 @@ class HatGeometry:
         return cls(params.hat_steps, params.mirror_edge_last_step, params.hat_offset_m)
 
 
-NOMINAL_HAT: Final = HatGeometry.of(VehicleParams())
+NOMINAL_HAT: Final = HatGeometry.of(VehicleParams.from_config(SimVehicleConfig()))
 
 
 class FixedRanges:
