@@ -1,7 +1,10 @@
 """Configuration: every constant, gain and limit, as frozen msgspec Structs decoded from YAML.
 
-The defaults below are the seed's and SPEC.md's; ``config.yaml`` at the repository root
-spells out the same values (a test keeps them identical). Each field carries its unit in
+The defaults are those of the 2011 QUT CyPhy MikroKopter documentation (its sections,
+equations and tables are cited as §D, eq 7, TABLE I) and of SPEC.md; ``config.yaml`` at the
+repository root spells out the same values (a test keeps them identical). Each default is
+defined here only: the components take their section (or a view derived from it by a
+``from_config`` classmethod) and repeat none of these values. Each field carries its unit in
 its name and its range in a ``Meta``; msgspec rejects an unknown key, a wrong type or an
 out-of-range value with the path (``$.control.kp_xy``), which :func:`load_config` turns
 into a :class:`ConfigError` naming the dotted key. The loader never prints or exits.
@@ -38,7 +41,7 @@ class MkSigns(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=T
 
 
 class MkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """The FlightCtrl link and the MK raw<->SI calibration (SPEC §1-2, seed §D eq 7-8)."""
+    """The FlightCtrl link and the MK raw<->SI calibration (SPEC §1-2, §D eq 7-8)."""
 
     port: str = "/dev/ttyUSB0"
     baudrate: Annotated[int, Meta(ge=1200, le=4_000_000)] = 57600
@@ -47,7 +50,7 @@ class MkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
     """Renew 'd' this often: the FC expires it ~4.1 s after the last renewal it *received*,
     and a renewal can be lost (a frame whose '#' arrives while the FC still handles the
     previous one is dropped, mk-serial.md §3). At 2 s two lost renewals in a row stop the
-    DebugOuts for a stale time (the 30-minute soak saw it once); at 1.3 s it takes three."""
+    DebugOuts for a stale time; at 1.3 s it takes three."""
     version_retry_s: Annotated[float, Meta(gt=0, le=5)] = 0.5
     answer_timeout_s: Annotated[float, Meta(gt=0, le=30)] = 2.0
     min_frame_gap_s: Annotated[float, Meta(ge=0.003, le=0.05)] = 0.003
@@ -68,7 +71,7 @@ class MkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
 
 
 class LaserConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """The Hokuyo URG and the laser hat (SPEC §2-3, seed §K eq 26)."""
+    """The Hokuyo URG and the laser hat (SPEC §2-3, §K eq 26)."""
 
     port: str = "/dev/ttyACM0"
     scan_steps: tuple[Step, Step] = (150, 725)
@@ -96,7 +99,7 @@ class LaserConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_on
 
 
 class EstimationConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """The velocity filter (seed §H eq 15-17, or a Kalman filter) and latency compensation."""
+    """The velocity filter (§H eq 15-17, or a Kalman filter) and latency compensation."""
 
     filter_period_s: Annotated[float, Meta(gt=0, le=1)] = 0.05
     filter_gain_per_s: Gain = 6.7
@@ -120,7 +123,7 @@ class EstimationConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, 
 
 
 class ControlConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """Position, velocity, yaw and altitude loops and their limits (SPEC §4, seed §C, J, K)."""
+    """Position, velocity, yaw and altitude loops and their limits (SPEC §4, §C, J, K)."""
 
     kp_xy: Gain = 2.0
     ki_xy: Gain = 0.05
@@ -251,7 +254,7 @@ class SimVehicleConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, 
     """
 
     mass_kg: Annotated[float, Meta(gt=0, le=20)] = 1.04
-    """All up (the 2011 QUT CyPhy MikroKopter documentation, §L: 1,040 g)."""
+    """All up (§L: 1,040 g)."""
     g_mps2: Annotated[float, Meta(ge=9.7, le=9.9)] = 9.81
     hover_gas: Annotated[float, Meta(gt=0, le=255)] = 104.0
     """The gas that holds the weight at ``hover_voltage_v``."""
@@ -271,7 +274,7 @@ class SimVehicleConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, 
     yaw_drift_radps: Annotated[float, Meta(ge=-1, le=1)] = 0.0
     """Yaw rate with the yaw stick at neutral (clockwise +)."""
     attitude_delay_s: Annotated[float, Meta(ge=0, le=1)] = 0.1
-    """The attitude response's pure delay (the documentation, §F)..."""
+    """The attitude response's pure delay (§F)..."""
     attitude_tau_s: Annotated[float, Meta(gt=0, le=2)] = 0.1
     """... and first-order lag."""
     gas_tau_s: Annotated[float, Meta(gt=0, le=1)] = 0.05
@@ -320,16 +323,16 @@ class SimVehicleConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, 
     acc_z_counts_per_mps2: PosFloat = 15.5
     acc_z_offset_mps2: float = 9.8
     battery_cells: Annotated[int, Meta(ge=1, le=12)] = 3
-    """The documentation, §M: 3 cells, 2200 mAh."""
+    """§M: 3 cells, 2200 mAh."""
     battery_capacity_ah: Annotated[float, Meta(gt=0, le=50)] = 2.2
     battery_used_ah: Annotated[float, Meta(ge=0, le=50)] = 0.0
     """Already drawn at take-off."""
     battery_resistance_ohm: Annotated[float, Meta(ge=0, le=1)] = 0.05
     """Pack + wiring."""
     hover_current_a: Annotated[float, Meta(gt=0, le=100)] = 6.8
-    """The documentation, §L: 4 x 1.7 A."""
+    """§L: 4 x 1.7 A."""
     avionics_current_a: Annotated[float, Meta(ge=0, le=20)] = 0.5
-    """The documentation, §L: Gumstix, laser, hub."""
+    """§L: Gumstix, laser, hub."""
     battery_noise_std_v: Annotated[float, Meta(ge=0, le=1)] = 0.02
     laser_extra_delay_s: Annotated[float, Meta(ge=0, le=0.5)] = 0.0
     """The URG's data is this much older than the driver's ``transport_delay_s`` says."""

@@ -4,7 +4,7 @@ Every ``t_ns`` in mkflight is integer nanoseconds, so the time factors are integ
 integer divided by one (``t_ns / NS_PER_S``) is a true division, and multiples of them
 (``86_400 * NS_PER_S``) stay exact. :data:`S_PER_NS` is the one float factor, for code
 that multiplies (``dt_ns * S_PER_NS``): a multiplication by ``1e-9`` rounds differently
-from a division by ``10**9``, so each call site keeps the operation it was written with.
+from a division by ``10**9``, so a call site that multiplies keeps multiplying.
 
 These are conversions between units only. Physical constants that are parameters of a
 model (gravity, the MK's and the URG's calibration) live in the configuration

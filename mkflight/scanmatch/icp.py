@@ -1,7 +1,8 @@
 """Point-to-line ICP of one scan against a reference scan: pure numpy + scipy KD-tree.
 
 The metric is that of PL-ICP (Censi 2008, "An ICP variant using a point-to-line metric",
-the matcher of CSM that the seed ran through ROS laser_scan_matcher): the error of a point
+the matcher of CSM, which the 2011 QUT CyPhy MikroKopter documentation's system ran through
+ROS laser_scan_matcher): the error of a point
 is its distance to the line of its corresponding reference point, so the matcher converges
 in a few Gauss-Newton steps where point-to-point ICP needs tens. As in CSM's defaults there
 is a correspondence gate (``max_correspondence_m``), trimming of the worst residuals

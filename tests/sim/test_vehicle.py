@@ -223,7 +223,7 @@ def test_battery_sags_with_load_and_with_use() -> None:
     s0 = _hovering(p, used_ah=0.0)
     s = _fly(s0, Sticks(gas_counts=hover_gas_counts(s0, p)), 1.0, p)
     assert s.battery_v < open_circuit_v(s.used_ah, p) - 0.3  # I R sag at ~7 A
-    assert s.current_a == pytest.approx(7.3, abs=0.6)  # seed §L: 6.8 A + 0.5 A
+    assert s.current_a == pytest.approx(7.3, abs=0.6)  # §L: 6.8 A + 0.5 A
     assert s.used_ah == pytest.approx(7.3 / 3600, rel=0.1)
 
 
