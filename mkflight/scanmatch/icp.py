@@ -2,11 +2,12 @@
 
 The metric is that of PL-ICP (Censi 2008, "An ICP variant using a point-to-line metric",
 the matcher of CSM, which the 2011 QUT CyPhy MikroKopter documentation's system ran through
-ROS laser_scan_matcher): the error of a point
-is its distance to the line of its corresponding reference point, so the matcher converges
-in a few Gauss-Newton steps where point-to-point ICP needs tens. As in CSM's defaults there
-is a correspondence gate (``max_correspondence_m``), trimming of the worst residuals
-(``keep_fraction``) and a stop on a small step. Two things differ from CSM:
+ROS laser_scan_matcher): the error of a point is its distance to the line of its
+corresponding reference point, so the matcher converges in a few Gauss-Newton steps where
+point-to-point ICP needs tens. As in CSM's defaults there is a correspondence gate
+(``max_correspondence_m``), trimming of the worst residuals (``keep_fraction``) and a stop
+on a small step; the tuning is the ``scanmatch`` config section
+(:class:`~mkflight.config.ScanmatchConfig`). Three things differ from CSM:
 
 * Correspondences come from one k=1 KD-tree query per point against line pieces fitted
   once per reference scan (:func:`~mkflight.scanmatch.geometry.build_reference`), and each
