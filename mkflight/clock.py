@@ -1,15 +1,14 @@
 """Clocks: the one place time is read, injected everywhere else.
 
 Records carry ``t_ns`` from a :class:`Clock`; pure code never reads time itself, so the
-simulator and replay can swap the monotonic clock for a manual one.
+simulator and replay can swap the monotonic clock for a manual one. Every ``t_ns`` is integer
+nanoseconds (:data:`mkflight.conversions.NS_PER_S`).
 """
 
 from __future__ import annotations
 
 import time
-from typing import Final, Protocol
-
-NS_PER_S: Final = 1_000_000_000  # every t_ns in mkflight is integer nanoseconds
+from typing import Protocol
 
 
 class Clock(Protocol):

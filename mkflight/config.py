@@ -1,7 +1,10 @@
 """Configuration: every constant, gain and limit, as frozen msgspec Structs decoded from YAML.
 
-The defaults below are the seed's and SPEC.md's; ``config.yaml`` at the repository root
-spells out the same values (a test keeps them identical). Each field carries its unit in
+The defaults are those of the 2011 QUT CyPhy MikroKopter documentation (its sections,
+equations and tables are cited as §D, eq 7, TABLE I) and of SPEC.md; ``config.yaml`` at the
+repository root spells out the same values (a test keeps them identical). Each default is
+defined here only: the components take their section (or a view derived from it by a
+``from_config`` classmethod) and repeat none of these values. Each field carries its unit in
 its name and its range in a ``Meta``; msgspec rejects an unknown key, a wrong type or an
 out-of-range value with the path (``$.control.kp_xy``), which :func:`load_config` turns
 into a :class:`ConfigError` naming the dotted key. The loader never prints or exits.
@@ -25,6 +28,8 @@ PosFloat = Annotated[float, Meta(gt=0)]
 NonNegFloat = Annotated[float, Meta(ge=0)]
 Gain = Annotated[float, Meta(ge=0, le=1000)]
 Step = Annotated[int, Meta(ge=0, le=1080)]
+TrimRad = Annotated[float, Meta(ge=-0.2, le=0.2)]
+AccBias = Annotated[float, Meta(ge=-2, le=2)]
 
 
 class MkSigns(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -36,7 +41,7 @@ class MkSigns(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=T
 
 
 class MkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """The FlightCtrl link and the MK raw<->SI calibration (SPEC §1-2, seed §D eq 7-8)."""
+    """The FlightCtrl link and the MK raw<->SI calibration (SPEC §1-2, §D eq 7-8)."""
 
     port: str = "/dev/ttyUSB0"
     baudrate: Annotated[int, Meta(ge=1200, le=4_000_000)] = 57600
@@ -45,7 +50,7 @@ class MkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
     """Renew 'd' this often: the FC expires it ~4.1 s after the last renewal it *received*,
     and a renewal can be lost (a frame whose '#' arrives while the FC still handles the
     previous one is dropped, mk-serial.md §3). At 2 s two lost renewals in a row stop the
-    DebugOuts for a stale time (the 30-minute soak saw it once); at 1.3 s it takes three."""
+    DebugOuts for a stale time; at 1.3 s it takes three."""
     version_retry_s: Annotated[float, Meta(gt=0, le=5)] = 0.5
     answer_timeout_s: Annotated[float, Meta(gt=0, le=30)] = 2.0
     min_frame_gap_s: Annotated[float, Meta(ge=0.003, le=0.05)] = 0.003
@@ -66,7 +71,7 @@ class MkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
 
 
 class LaserConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """The Hokuyo URG and the laser hat (SPEC §2-3, seed §K eq 26)."""
+    """The Hokuyo URG and the laser hat (SPEC §2-3, §K eq 26)."""
 
     port: str = "/dev/ttyACM0"
     scan_steps: tuple[Step, Step] = (150, 725)
@@ -76,10 +81,25 @@ class LaserConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_on
     max_range_m: PosFloat = 5.6
     transport_delay_s: Annotated[float, Meta(ge=0, le=0.5)] = 0.03
     stall_s: Annotated[float, Meta(gt=0, le=5)] = 0.3
+    """No scan for this long: QT, drain, re-issue MD (``scip2.md`` §6)."""
+    request_timeout_s: Annotated[float, Meta(gt=0, le=10)] = 1.0
+    """Longest wait for the answer to one request."""
+    drain_silence_s: Annotated[float, Meta(gt=0, le=1)] = 0.15
+    """After QT, the sensor is quiet once it sent nothing for this long..."""
+    drain_max_s: Annotated[float, Meta(gt=0, le=10)] = 1.0
+    """... waiting at most this long for it."""
+    max_restarts: Annotated[int, Meta(ge=0, le=100)] = 5
+    """MD re-issued this many times in a row without a good scan: the sensor failed."""
+    sum_error_run: Annotated[int, Meta(ge=1, le=100)] = 3
+    """This many scans in a row with a bad sum re-issue MD."""
+    reopen_backoff_s: Annotated[float, Meta(gt=0, le=10)] = 0.1
+    """First wait before re-opening a vanished port, doubling..."""
+    reopen_backoff_max_s: Annotated[float, Meta(gt=0, le=60)] = 2.0
+    """... up to this."""
 
 
 class EstimationConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """The velocity filter (seed §H eq 15-17, or a Kalman filter) and latency compensation."""
+    """The velocity filter (§H eq 15-17, or a Kalman filter) and latency compensation."""
 
     filter_period_s: Annotated[float, Meta(gt=0, le=1)] = 0.05
     filter_gain_per_s: Gain = 6.7
@@ -103,7 +123,7 @@ class EstimationConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, 
 
 
 class ControlConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """Position, velocity, yaw and altitude loops and their limits (SPEC §4, seed §C, J, K)."""
+    """Position, velocity, yaw and altitude loops and their limits (SPEC §4, §C, J, K)."""
 
     kp_xy: Gain = 2.0
     ki_xy: Gain = 0.05
@@ -138,23 +158,52 @@ class ControlConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_
 
 
 class ScanmatchConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """Point-to-line ICP and keyframes (``mkflight.scanmatch``: IcpParams, KeyframeMatcher)."""
+    """Point-to-line ICP and keyframes (:func:`mkflight.scanmatch.icp.match`, KeyframeMatcher).
+
+    CSM is the matcher ROS laser_scan_matcher runs; its defaults are given for comparison.
+    """
 
     max_iterations: Annotated[int, Meta(ge=1, le=100)] = 15
+    """Gauss-Newton steps at most (CSM/laser_scan_matcher: 10)."""
     max_correspondence_m: Annotated[float, Meta(gt=0, le=5)] = 0.5
+    """KD-tree gate on the point to line-centre distance in the first iterations (CSM:
+    0.3 m; wider so an odometry prior that is 0.3 m off on a 1 m step still converges)."""
     min_correspondence_m: Annotated[float, Meta(gt=0, le=5)] = 0.2
+    """Once steps are below 1 cm / 0.01 rad the gate shrinks by 0.7 per iteration down to
+    this, so late iterations ignore far outliers."""
     keep_fraction: Annotated[float, Meta(gt=0, le=1)] = 1.0
+    """Share of the gated correspondences kept, smallest residuals first (CSM
+    ``outliers_maxPerc`` = 0.9); 1 = off, because the Cauchy weights measured better on
+    the real logs."""
     robust_scale_m: Annotated[float, Meta(ge=0, le=1)] = 0.05
+    """Cauchy weight ``1 / (1 + (r / c)^2)`` on each residual, c in metres; 0 = plain
+    least squares."""
     step_tolerance_m: Annotated[float, Meta(gt=0, le=0.1)] = 1e-4
+    """Converged when the translation step is below this..."""
     step_tolerance_rad: Annotated[float, Meta(gt=0, le=0.1)] = 1e-4
+    """... and the rotation step below this."""
     min_matches: Annotated[int, Meta(ge=3, le=10000)] = 20
+    """Fewest inlier correspondences of a valid result."""
     min_matched_fraction: Annotated[float, Meta(ge=0, le=1)] = 0.1
+    """Fewest inliers of a valid result, as a fraction of the scan's points."""
     max_rms_m: Annotated[float, Meta(gt=0, le=1)] = 0.05
+    """Largest RMS point-to-line residual of a valid result."""
     degeneracy_threshold: Annotated[float, Meta(ge=0, le=1)] = 0.01
+    """Structural information below which a direction counts as unobservable. Measured:
+    the synthetic rooms score >= 0.09 on their weakest axis, real offices (Intel, fr079)
+    0.01-0.1 in 99 % of scans, the 12 m corridor exactly 0."""
     noise_floor: Annotated[float, Meta(ge=0, le=1)] = 0.2
+    """A residual row counts toward a direction's structural information only when its
+    projection on that direction exceeds this: wall normals tilted by range noise give
+    ~0.05 and must not make a corridor look observable."""
     max_points: Annotated[int, Meta(ge=0, le=100000)] = 0
+    """The current scan is thinned evenly to at most this many points (0 = all); fewer
+    points cost proportionally less time."""
     keyframe_distance_m: Annotated[float, Meta(gt=0, le=5)] = 0.10
+    """A new keyframe after this much motion from the current one (laser_scan_matcher's
+    ``kf_dist_linear``)..."""
     keyframe_angle_rad: Annotated[float, Meta(gt=0, le=3.2)] = 0.1745
+    """... or this much turn (10 degrees, its ``kf_dist_angular``)."""
     worker: Literal["process", "inline"] = "process"  # where the daemon runs the matcher
 
 
@@ -198,36 +247,107 @@ class SimVehicleConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, 
     simulator reads nothing of ``mk``, ``control`` or the flight code's calibration. The
     defaults are SPEC §8's nominal airframe; ``hover_gas`` (104) differs from
     ``control.hover_gas`` (100, the controller's feed-forward) on purpose, as a real airframe
-    does from its tuning. ``sim.airframe: random`` ignores this section and draws every
-    constant from the envelope (``mkflight.sim.airframe.ENVELOPE``).
+    does from its tuning, and the MK's conventions (signs, accelerometer scales) are the
+    FC's facts, written here independently of ``mk``'s copy. ``sim.airframe: random``
+    draws the envelope's constants (``mkflight.sim.airframe.ENVELOPE``) and takes the
+    others from these defaults, not from this section.
     """
 
     mass_kg: Annotated[float, Meta(gt=0, le=20)] = 1.04
+    """All up (§L: 1,040 g)."""
+    g_mps2: Annotated[float, Meta(ge=9.7, le=9.9)] = 9.81
     hover_gas: Annotated[float, Meta(gt=0, le=255)] = 104.0
+    """The gas that holds the weight at ``hover_voltage_v``."""
     hover_voltage_v: Annotated[float, Meta(gt=0, le=60)] = 11.8
+    gas_max_counts: Annotated[float, Meta(gt=0, le=255)] = 255.0
+    """The FC's gas is an unsigned char."""
     counts_per_rad: Annotated[float, Meta(gt=0, le=1000)] = 120.0
+    """The FC's attitude loop: stick counts per radian."""
+    nick_sign: Sign = -1
+    """The MK: angle = sign x counts / counts_per_rad (+ nick: nose down)."""
+    roll_sign: Sign = -1
+    yaw_sign: Sign = -1
+    max_tilt_rad: Annotated[float, Meta(gt=0, le=1.6)] = 1.0
+    """The FC's attitude loop never commands more."""
     yaw_rate_radps_per_count: Annotated[float, Meta(gt=0, le=1)] = 0.02
+    """The yaw stick is a rate: 40 counts -> 0.8 rad/s."""
     yaw_drift_radps: Annotated[float, Meta(ge=-1, le=1)] = 0.0
+    """Yaw rate with the yaw stick at neutral (clockwise +)."""
     attitude_delay_s: Annotated[float, Meta(ge=0, le=1)] = 0.1
+    """The attitude response's pure delay (§F)..."""
     attitude_tau_s: Annotated[float, Meta(gt=0, le=2)] = 0.1
+    """... and first-order lag."""
     gas_tau_s: Annotated[float, Meta(gt=0, le=1)] = 0.05
-    drag_linear_per_s: Annotated[float, Meta(ge=0, le=5)] = 0.3
+    """Motors + ESCs: gas -> thrust lag."""
     ground_effect: Annotated[float, Meta(ge=0, le=1)] = 0.0
+    """Extra thrust on the floor (0.15: +15 %), fading with height."""
+    ground_effect_height_m: Annotated[float, Meta(gt=0, le=1)] = 0.1
+    """The rotors' height above the floor when landed."""
+    gear_sag_m: Annotated[float, Meta(gt=0, le=0.1)] = 0.008
+    """Landing gear: static compression with the motors off (sets the stiffness)."""
+    gear_compression_zeta: Annotated[float, Meta(gt=0, le=20)] = 0.3
+    """Damping ratio while compressing: a ~40 ms stop."""
+    gear_rebound_zeta: Annotated[float, Meta(gt=0, le=20)] = 6.0
+    """Damping ratio while extending: no bounce."""
+    gear_friction: Annotated[float, Meta(ge=0, le=2)] = 0.6
+    """Coulomb friction coefficient on the floor."""
+    drag_linear_per_s: Annotated[float, Meta(ge=0, le=5)] = 0.3
+    """k1 of the drag ``k1 v + k2 |v| v`` per unit mass."""
+    drag_quadratic_per_m: Annotated[float, Meta(ge=0, le=5)] = 0.1
+    """k2 of the same."""
     gusts: bool = True
     wind_std_mps: Annotated[float, Meta(ge=0, le=5)] = 0.1
+    """Ornstein-Uhlenbeck wind velocity, horizontal (half of it vertical), through the drag."""
     wind_tau_s: Annotated[float, Meta(gt=0, le=60)] = 2.0
     gust_accel_std_mps2: Annotated[float, Meta(ge=0, le=5)] = 0.0
+    """Ornstein-Uhlenbeck disturbance acceleration, horizontal (turbulence)..."""
+    gust_accel_z_ratio: Annotated[float, Meta(ge=0, le=5)] = 0.4
+    """... vertical, as a fraction of that."""
     gust_tau_s: Annotated[float, Meta(gt=0, le=60)] = 1.0
     trim_std_rad: Annotated[float, Meta(ge=0, le=0.2)] = 0.005
+    """Attitude trim per flight and axis, seeded (normal)."""
+    trim_rad: tuple[TrimRad, TrimRad] = (0.0, 0.0)
+    """The fixed angle bias (pitch, roll) of this FC."""
     acc_bias_std_mps2: Annotated[float, Meta(ge=0, le=2)] = 0.05
+    """Accelerometer bias per flight and axis, seeded (normal)."""
+    acc_bias_mps2: tuple[AccBias, AccBias, AccBias] = (0.0, 0.0, 0.0)
+    """The fixed accelerometer bias (x, y, z) of this FC."""
     vibration_std_mps2: Annotated[float, Meta(ge=0, le=5)] = 0.2
+    """Motor vibration left in the FC-averaged x/y accelerations at hover."""
     vibration_z_ratio: Annotated[float, Meta(ge=0, le=5)] = 1.0
+    """... on AccZ, as a fraction of that."""
+    angle_noise_std_rad: Annotated[float, Meta(ge=0, le=0.1)] = 0.002
+    acc_nick_counts_per_g: PosFloat = 606.3
+    """The FC's accelerometer as it is (``mk-serial.md`` §6; SPEC §1)."""
+    acc_roll_counts_per_g: PosFloat = 603.44
+    acc_z_counts_per_mps2: PosFloat = 15.5
+    acc_z_offset_mps2: float = 9.8
+    battery_cells: Annotated[int, Meta(ge=1, le=12)] = 3
+    """§M: 3 cells, 2200 mAh."""
     battery_capacity_ah: Annotated[float, Meta(gt=0, le=50)] = 2.2
     battery_used_ah: Annotated[float, Meta(ge=0, le=50)] = 0.0
+    """Already drawn at take-off."""
+    battery_resistance_ohm: Annotated[float, Meta(ge=0, le=1)] = 0.05
+    """Pack + wiring."""
+    hover_current_a: Annotated[float, Meta(gt=0, le=100)] = 6.8
+    """§L: 4 x 1.7 A."""
+    avionics_current_a: Annotated[float, Meta(ge=0, le=20)] = 0.5
+    """§L: Gumstix, laser, hub."""
+    battery_noise_std_v: Annotated[float, Meta(ge=0, le=1)] = 0.02
     laser_extra_delay_s: Annotated[float, Meta(ge=0, le=0.5)] = 0.0
+    """The URG's data is this much older than the driver's ``transport_delay_s`` says."""
     laser_jitter_s: Annotated[float, Meta(ge=0, le=0.1)] = 0.0
+    """USB jitter per URG reply, uniform 0..this."""
     debug_jitter_ticks: Annotated[int, Meta(ge=0, le=50)] = 0
+    """The FC's main loop sends DebugOut up to this many 1.024 ms ticks late..."""
     debug_late_fraction: Annotated[float, Meta(ge=0, le=0.5)] = 0.0
+    """... and this share of DebugOuts 5-25 ms late."""
+    hat_steps: tuple[Step, Step] = (44, 127)
+    """URG steps the laser hat's mirror folds down to the floor, as built on this airframe."""
+    mirror_edge_last_step: Step = 149
+    """Steps after the hat up to this one see the mirror's edge."""
+    hat_offset_m: Annotated[float, Meta(ge=0, le=1)] = 0.05
+    """The hat's range on the floor minus the height (standing on the floor: 0)."""
 
 
 class SimConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -343,10 +463,14 @@ def _dotted(msgspec_path: str) -> str:
 
 def _cross_checks(cfg: Config, source: str) -> None:
     """Rules that span fields, which a per-field range cannot express."""
-    for key in ("scan_steps", "hat_steps"):
-        lo, hi = getattr(cfg.laser, key)
+    step_ranges = {
+        "laser.scan_steps": cfg.laser.scan_steps,
+        "laser.hat_steps": cfg.laser.hat_steps,
+        "sim.vehicle.hat_steps": cfg.sim.vehicle.hat_steps,
+    }
+    for key, (lo, hi) in step_ranges.items():
         if lo > hi:
-            msg = f"{source}: laser.{key}: first step {lo} is after last step {hi}"
+            msg = f"{source}: {key}: first step {lo} is after last step {hi}"
             raise ConfigError(msg)
     if cfg.safety.land_voltage_v > cfg.safety.warn_voltage_v:
         msg = f"{source}: safety.land_voltage_v: must not exceed safety.warn_voltage_v"
@@ -357,9 +481,14 @@ def _cross_checks(cfg: Config, source: str) -> None:
     if cfg.scanmatch.min_correspondence_m > cfg.scanmatch.max_correspondence_m:
         msg = f"{source}: scanmatch.min_correspondence_m: above max_correspondence_m"
         raise ConfigError(msg)
-    if cfg.mk.reopen_backoff_s > cfg.mk.reopen_backoff_max_s:
-        msg = f"{source}: mk.reopen_backoff_s: must not exceed mk.reopen_backoff_max_s"
-        raise ConfigError(msg)
+    for section in ("mk", "laser"):
+        backoff = getattr(cfg, section)
+        if backoff.reopen_backoff_s > backoff.reopen_backoff_max_s:
+            msg = (
+                f"{source}: {section}.reopen_backoff_s: must not exceed "
+                f"{section}.reopen_backoff_max_s"
+            )
+            raise ConfigError(msg)
 
 
 def config_from_dict(data: Any, source: str = "config") -> Config:

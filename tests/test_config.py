@@ -144,6 +144,8 @@ def test_non_string_key_names_its_section() -> None:
         ("safety:\n  land_voltage_v: 11.0\n", "safety.land_voltage_v"),
         ("control:\n  takeoff_height_m: 2.0\n", "control.takeoff_height_m"),
         ("mk:\n  reopen_backoff_s: 5\n", "mk.reopen_backoff_s"),
+        ("laser:\n  reopen_backoff_s: 5\n", "laser.reopen_backoff_s"),
+        ("sim:\n  vehicle:\n    hat_steps: [127, 44]\n", "sim.vehicle.hat_steps"),
     ],
 )
 def test_cross_checks_name_the_key(tmp_path: Path, yaml_text: str, key: str) -> None:

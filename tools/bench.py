@@ -37,6 +37,7 @@ from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any
 
+from mkflight.conversions import MS_PER_S, NS_PER_MS, NS_PER_US, US_PER_S
 from mkflight.mk.codec import FrameParser
 from mkflight.mk.link import LinkSettings, MkLink
 from mkflight.mk.messages import DebugOut, ExternControl
@@ -117,13 +118,13 @@ def bench_step(duration_s: float = 60.0) -> dict[str, float]:
     def timed_imu(self: Any, *a: Any, **k: Any) -> Any:
         t0 = time.process_time_ns()
         out = imu_step(self, *a, **k)
-        imu_us.append((time.process_time_ns() - t0) / 1e3)
+        imu_us.append((time.process_time_ns() - t0) / NS_PER_US)
         return out
 
     def timed_laser(self: Any, *a: Any, **k: Any) -> Any:
         t0 = time.process_time_ns()
         out = laser_step(self, *a, **k)
-        laser_us.append((time.process_time_ns() - t0) / 1e3)
+        laser_us.append((time.process_time_ns() - t0) / NS_PER_US)
         return out
 
     core_cls.imu_step = timed_imu  # type: ignore[method-assign]
@@ -165,7 +166,7 @@ def fc_process(master: int, samples: int, period_s: float, ready: Any, out: Any)
             data = os.read(master, 4096)
             t1 = time.perf_counter_ns()
             got = any(f.cmd == "b" for f in parser.feed(data))
-        latencies_ms.append((t1 - t0) / 1e6)
+        latencies_ms.append((t1 - t0) / NS_PER_MS)
         time.sleep(period_s)
     out.send(latencies_ms)
 
@@ -176,10 +177,10 @@ Host = Callable[[str, Any, int], Coroutine[Any, Any, float]]
 async def busy_task(chunk_ms: float, every_ms: float) -> None:
     """Other work on the same event loop (a scan match, log formatting): CPU in chunks."""
     while True:
-        t_end = time.perf_counter() + chunk_ms / 1000
+        t_end = time.perf_counter() + chunk_ms / MS_PER_S
         while time.perf_counter() < t_end:
             pass
-        await asyncio.sleep(every_ms / 1000)
+        await asyncio.sleep(every_ms / MS_PER_S)
 
 
 def with_load(host: Host, chunk_ms: float = 2.0, every_ms: float = 5.0) -> Host:
@@ -200,10 +201,11 @@ async def host_mkflight(path: str, ready: Any, samples: int) -> float:
 
     Returns the process CPU time per sample after the warm-up, in microseconds.
     """
+    from mkflight.config import Config
     from mkflight.io.serial import open_serial
 
     stream = await open_serial(path, 57600)
-    link = MkLink(stream, LinkSettings(), DEFAULT_CALIBRATION)
+    link = MkLink(stream, LinkSettings.from_config(Config()), DEFAULT_CALIBRATION)
     link.start()
     ready.set()
     cpu0 = 0.0
@@ -212,7 +214,7 @@ async def host_mkflight(path: str, ready: Any, samples: int) -> float:
             cpu0 = time.process_time()
         await link.next_sample(timeout_s=5.0)
         link.send_extern_control(COMMAND)
-    cpu_us = (time.process_time() - cpu0) / max(1, samples - WARMUP) * 1e6
+    cpu_us = (time.process_time() - cpu0) / max(1, samples - WARMUP) * US_PER_S
     await link.close(release=False)
     return cpu_us
 
@@ -236,7 +238,7 @@ async def host_pyserial_asyncio(path: str, ready: Any, samples: int) -> float:
                 answered += 1
                 if answered == WARMUP:
                     cpu0 = time.process_time()
-    cpu_us = (time.process_time() - cpu0) / max(1, samples - WARMUP) * 1e6
+    cpu_us = (time.process_time() - cpu0) / max(1, samples - WARMUP) * US_PER_S
     writer.close()
     return cpu_us
 

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from mkflight.commands.scanmatch import read_trajectory, track_records
+from mkflight.conversions import MS_PER_S
 from mkflight.scanmatch import KeyframeMatcher, read_carmen, scan_to_points
 from mkflight.sim.room import random_room, raycast
 
@@ -92,8 +93,8 @@ def bench_dataset(name: str, repeat: int = 1) -> dict[str, Any]:
     tracked = track_records(parsed.records, odom=odom_data)
     for _ in range(repeat - 1):
         more = track_records(parsed.records, odom=odom_data)
-        times_ms += [s.elapsed_s * 1e3 for s in more[1:]]
-    times_ms += [s.elapsed_s * 1e3 for s in tracked[1:]]
+        times_ms += [s.elapsed_s * MS_PER_S for s in more[1:]]
+    times_ms += [s.elapsed_s * MS_PER_S for s in tracked[1:]]
     traj = np.array([(s.t_s, *s.pose) for s in tracked])
     order = np.argsort(traj[:, 0], kind="stable")
     score = rv.evaluate(traj[order, 0], traj[order, 1:4], rv.load_relations(str(LASER / rel)))
@@ -137,7 +138,7 @@ def bench_synthetic(n_rooms: int = 5, scans_per_room: int = 200, seed: int = 1) 
                 matcher = KeyframeMatcher(start_pose=(x, y, th))
             upd = matcher.update(pts, dt_s=0.1)
             if i > 0:
-                times_ms.append((time.perf_counter() - t0) * 1e3)
+                times_ms.append((time.perf_counter() - t0) * MS_PER_S)
                 errors_m.append(math.hypot(upd.pose[0] - x, upd.pose[1] - y))
     return {
         "dataset": "synthetic URG 682 beams (random rooms)",

@@ -34,6 +34,8 @@ from fuzz_urg import (
     scip_status,
 )
 
+from mkflight.config import Config, LaserConfig
+from mkflight.conversions import MM_PER_M
 from mkflight.errors import CommandRangeError, LinkError
 from mkflight.io.pty import PtyDevice
 from mkflight.io.serial import open_serial
@@ -41,7 +43,7 @@ from mkflight.mk.codec import Frame, FrameParser
 from mkflight.mk.link import LinkSettings, MkLink
 from mkflight.mk.messages import FORBIDDEN_COMMANDS, Confirm, ExternControl
 from mkflight.mk.units import DEFAULT_CALIBRATION, imu_from_debug
-from mkflight.urg.driver import UrgDriver, UrgSettings
+from mkflight.urg.driver import UrgDriver
 
 
 # ================================================================= the device end of a pty
@@ -184,7 +186,7 @@ async def run_mk_link(n: int, rng: random.Random, advance: Advance = lambda k: N
     """``n`` frame pieces through a real MkLink on a pty, a valid DebugOut in every unit."""
     result = PassResult("MK link (pty)")
     started = time.perf_counter()
-    settings = LinkSettings()
+    settings = LinkSettings.from_config(Config())
     device = PtyDevice("fuzz-fc")
     wire = Wire(device)
     sink = CommandSink(device, settings)
@@ -316,7 +318,7 @@ async def run_urg_driver(
     wire, totals = Wire(device), Totals()
     sensor = ScriptedUrg(wire, totals)
     sensor_task = asyncio.create_task(sensor.run())
-    driver = UrgDriver(await open_serial(device.path, 115200), UrgSettings(), tap=wire.tap)
+    driver = UrgDriver(await open_serial(device.path, 115200), LaserConfig(), tap=wire.tap)
     units = scans = stale = 0
     stamp = rng.randrange(1 << 24)
     try:
@@ -344,7 +346,7 @@ async def run_urg_driver(
             await wire.send(rng, unit.data)
             units += 1
             scan = await driver.next_scan(timeout_s=2.0)
-            ranges = np.where((values >= 20) & (values <= 5600), values / 1000.0, np.nan)
+            ranges = np.where((values >= 20) & (values <= 5600), values / MM_PER_M, np.nan)
             scans += scan.first_step == 44 and np.array_equal(scan.ranges_m, ranges, equal_nan=True)
             result.tried += tried
             advance(tried)

@@ -101,6 +101,7 @@ from soak_report import (  # tools/soak_report.py, beside this file
 
 from mkflight.config import Config, load_config
 from mkflight.control.phases import Phase
+from mkflight.conversions import MIN_PER_H, MS_PER_S, NS_PER_MS, NS_PER_S
 from mkflight.errors import ConfigError
 from mkflight.sim.pty_server import LATE_NOTE_NS
 
@@ -243,7 +244,9 @@ class Recorder:
         now = time.monotonic_ns()
         if phase == "start":
             self._gc_t0_ns = now
-        elif (ms := (now - self._gc_t0_ns) / 1e6) >= GC_NOTE_MS and len(self.gc_pauses) < 1000:
+        elif (ms := (now - self._gc_t0_ns) / NS_PER_MS) >= GC_NOTE_MS and len(
+            self.gc_pauses
+        ) < 1000:
             self.gc_pauses.append((now, ms, info.get("generation", -1)))
 
     def on_step(self, out: ImuStepOutput) -> None:
@@ -270,7 +273,7 @@ class Recorder:
         s["commands"][i] = link.commands_sent
         s["superseded"][i] = link.superseded_commands
         self.n = i + 1
-        elapsed_s = (self._sample_t_ns - app.start_ns) / 1e9
+        elapsed_s = (self._sample_t_ns - app.start_ns) / NS_PER_S
         if i == 0:
             self.matcher_pid = app.worker.worker_pid
             self.children = _children()
@@ -307,7 +310,7 @@ class Recorder:
         if snapshot and tracemalloc.is_tracing():
             t0 = time.perf_counter()
             snap = tracemalloc.take_snapshot()
-            self.snapshots.append((t_s, (time.perf_counter() - t0) * 1000, snap))
+            self.snapshots.append((t_s, (time.perf_counter() - t0) * MS_PER_S, snap))
             self.snap_steps.append(self.n - 1)
 
 
@@ -336,7 +339,7 @@ class Plan:
 def battery_overrides(cfg: Config, minutes: float) -> tuple[list[str], str]:
     """The ``--set`` that sizes the pack for the soak (none if it suffices) and why."""
     v = cfg.sim.vehicle
-    need_ah = SOAK_CURRENT_A * (minutes + MARGIN_MIN) / 60.0
+    need_ah = SOAK_CURRENT_A * (minutes + MARGIN_MIN) / MIN_PER_H
     if need_ah <= MAX_USED_FRACTION * (v.battery_capacity_ah - v.battery_used_ah):
         return [], (
             f"configured pack {v.battery_capacity_ah:g} Ah kept: the soak draws about "
@@ -425,10 +428,10 @@ async def soak(cfg: Config, plan: Plan, folder: Path) -> dict[str, Any]:
     )
     out["simulator_late"] = {
         name: {
-            "wakeups_late_over_ms": LATE_NOTE_NS / 1e6,
+            "wakeups_late_over_ms": LATE_NOTE_NS / NS_PER_MS,
             "count": v["count"],
             "max_ms": round(max((ms for _, ms in v["wakes"]), default=0.0), 2),
-            "at_s": [round((t - app.start_ns) / 1e9, 3) for t, _ in v["wakes"][:20]],
+            "at_s": [round((t - app.start_ns) / NS_PER_S, 3) for t, _ in v["wakes"][:20]],
             # frames the emulated device dropped because they arrived too soon after the
             # previous one (mk-serial.md §3): host bytes are stamped when the simulator
             # reads them, so a late read packs frames the daemon had spaced

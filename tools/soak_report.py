@@ -21,6 +21,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from mkflight.conversions import MS_PER_S, NS_PER_MS, NS_PER_S, S_PER_MIN
+
 GAP_FACTOR = 1.5
 """A step interval longer than this many median periods is a missed step."""
 TOP_SITES = 5
@@ -196,17 +198,17 @@ def figures(
     """
     n, s = rec.n, {k: v[: rec.n] for k, v in rec.steps.items()}
     arr = s["arrival_ns"]
-    t_s = (arr - start_ns) / 1e9
-    period = np.concatenate([[math.nan], np.diff(arr) / 1e6])  # ms, the interval before i
+    t_s = (arr - start_ns) / NS_PER_S
+    period = np.concatenate([[math.nan], np.diff(arr) / NS_PER_MS])  # ms, the interval before i
     median = float(np.nanmedian(period)) if n > 1 else math.nan
     gap = period > GAP_FACTOR * median
     dev = np.abs(period - median)
     dev[s["restart"]] = math.nan
-    lat, busy = s["latency_ns"] / 1e6, s["busy_ns"] / 1e6
+    lat, busy = s["latency_ns"] / NS_PER_MS, s["busy_ns"] / NS_PER_MS
     dropped = np.concatenate([[0], np.diff(s["dropped"])])
     cause = _gaps(rec, gap, dropped, sim_late_ns)
     sim = np.array(sim_rows, dtype=np.float64).reshape(-1, 9)
-    sim_t = (sim[:, 0] - start_ns) / 1e9
+    sim_t = (sim[:, 0] - start_ns) / NS_PER_S
     bounds = [*np.arange(0.0, rec.duration_s - 1e-6, window_s), rec.duration_s, math.inf]
     windows = []
     for lo, hi in itertools.pairwise(bounds):
@@ -219,7 +221,9 @@ def figures(
         mem = next((m for m in reversed(rec.samples) if lo < m.t_s <= hi), None)
         windows.append(
             {
-                "label": "landing" if math.isinf(hi) else f"{lo / 60:g}-{hi / 60:g} min",
+                "label": "landing"
+                if math.isinf(hi)
+                else f"{lo / S_PER_MIN:g}-{hi / S_PER_MIN:g} min",
                 "start_s": round(float(lo), 1),
                 "steps": int(idx.size),
                 "gaps": int(gap[idx].sum()),
@@ -228,7 +232,7 @@ def figures(
                 "latency_ms": _triple(lat[idx]),
                 "period_dev_ms": _triple(dev[idx]),
                 "cpu_ms_per_step": round(
-                    1000 * float(s["cpu_s"][idx[-1]] - s["cpu_s"][prev]) / steps_cpu, 4
+                    MS_PER_S * float(s["cpu_s"][idx[-1]] - s["cpu_s"][prev]) / steps_cpu, 4
                 )
                 if steps_cpu > 0
                 else None,
@@ -274,7 +278,7 @@ def figures(
             ],
             "gc_pauses_over_ms": GC_NOTE_MS,
             "gc_pauses": [
-                {"t_s": round((t - start_ns) / 1e9, 3), "ms": round(ms, 2), "generation": g}
+                {"t_s": round((t - start_ns) / NS_PER_S, 3), "ms": round(ms, 2), "generation": g}
                 for t, ms, g in rec.gc_pauses[:100]
             ],
             "overruns": int((busy > OVERRUN_MS).sum()),
@@ -401,7 +405,8 @@ def format_table(r: dict[str, Any]) -> str:
     lines = [
         f"Soak: {p['minutes']:g} min simulated hover, seed {p['seed']}, gusts "
         f"{'on' if p['gusts'] else 'off'} (std {p['wind_std_mps']:g} m/s), windows of "
-        f"{p['window_s'] / 60:g} min, memory every {p['sample_s'] / 60:g} min, tracemalloc "
+        f"{p['window_s'] / S_PER_MIN:g} min, memory every {p['sample_s'] / S_PER_MIN:g} min, "
+        f"tracemalloc "
         f"{'on' if p['tracemalloc'] else 'OFF'}",
         f"battery: {p['battery']}",
         f"flight: exit {fl['exit_code']}, final phase {fl['final_phase']}, ended by "

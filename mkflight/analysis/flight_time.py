@@ -12,11 +12,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from mkflight.conversions import MIN_PER_H
+
 DEFAULT_USABLE_FRACTION = 0.9
 """The original system's empirical derating factor (§L)."""
 
 MOTORS = 4
-MIN_PER_H = 60.0
 
 
 @dataclass(frozen=True, slots=True)

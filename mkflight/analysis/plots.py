@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import MkflightError
 from mkflight.logs import table3, table4
 from mkflight.logs.events import read_events
@@ -36,7 +37,6 @@ if TYPE_CHECKING:
 INSTALL_HINT = "pip install 'mkflight[plot]'"
 LASER_PERIOD_S = 0.1  # TABLE III: one row per 100 ms laser step
 IMU_PERIOD_S = 0.05  # TABLE IV: one row per 50 ms step
-NS_PER_S = 1e9
 DPI = 120
 
 Array = npt.NDArray[np.float64]

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import MkflightError
 from mkflight.logs.events import Event
 
@@ -26,8 +27,6 @@ SETTLE_S = 3.0
 
 TRUTH_TOLERANCE_S = 0.03
 """A truth row is used for a step only if it is this close in time (s)."""
-
-NS_PER_S = 1_000_000_000
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -24,6 +24,7 @@ from mkflight.analysis.precision import (
     precision,
     with_truth,
 )
+from mkflight.conversions import MS_PER_S, NS_PER_S
 from mkflight.logs.events import FILE_NAME as EVENTS_FILE
 from mkflight.logs.events import read_events
 from mkflight.logs.table3 import FILE_NAME as TABLE3_FILE
@@ -116,12 +117,13 @@ def _event_times_s(folder: Path, event: str, rows: int) -> np.ndarray | None:
     times = [e.t_ns for e in read_events(path).events if e.event == event]
     if len(times) != rows:
         return None
-    return np.asarray(times, dtype=np.float64) / 1e9
+    return np.asarray(times, dtype=np.float64) / NS_PER_S
 
 
 def _print_curve(name: str, curve: LagCurve, period_s: float) -> None:
     print(
-        f"  {name:<13}{curve.lag_steps:3d} steps = {curve.lag_fine_steps * period_s * 1000:4.0f} ms"
+        f"  {name:<13}{curve.lag_steps:3d} steps = "
+        f"{curve.lag_fine_steps * period_s * MS_PER_S:4.0f} ms"
         f"  r {curve.peak_r:5.2f}  (x: {curve.lag_x_steps}, y: {curve.lag_y_steps})"
     )
 
@@ -166,8 +168,8 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
         print(json.dumps(lat.as_dict()))
         return 0
     print(
-        f"response lag of {folder}: {lat.lag_steps} steps = {lat.lag_s * 1000:.0f} ms at "
-        f"{lat.period_s * 1000:.1f} ms a step (the seed, Fig 8: ~{SEED_LAG_STEPS} steps = "
+        f"response lag of {folder}: {lat.lag_steps} steps = {lat.lag_s * MS_PER_S:.0f} ms at "
+        f"{lat.period_s * MS_PER_S:.1f} ms a step (the seed, Fig 8: ~{SEED_LAG_STEPS} steps = "
         f"{SEED_LAG_STEPS * 50} ms)"
     )
     _print_curve("acceleration", lat.acceleration, lat.period_s)
@@ -187,5 +189,5 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
     for k in range(len(lat.acceleration.curve)):
         r = [" " * 7 if c is None else f"{float(c.curve[k]):7.3f}" for c in curves]
         mark = "  <- peak" if k == lat.lag_steps else ""
-        print(f"  {k:4d} {k * lat.period_s * 1000:5.0f} {' '.join(r)}{mark}")
+        print(f"  {k:4d} {k * lat.period_s * MS_PER_S:5.0f} {' '.join(r)}{mark}")
     return 0

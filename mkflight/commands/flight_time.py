@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 from mkflight.analysis.flight_time import MOTORS, flight_time
+from mkflight.conversions import MIN_PER_H
 from mkflight.errors import ConfigError
 
 
@@ -57,7 +58,7 @@ def cmd_flight_time(
         f"battery {capacity_ah:g} Ah, current {current_a:g} A{extra} = "
         f"{result.total_current_a:g} A  (seed §L, eq 27: t = B / C)"
     )
-    print(f"ideal    {result.ideal_min:6.2f} min  ({result.ideal_min / 60:.3f} h)")
+    print(f"ideal    {result.ideal_min:6.2f} min  ({result.ideal_min / MIN_PER_H:.3f} h)")
     print(f"derated  {result.derated_min:6.2f} min  (x {usable:g} usable)")
     if result.thrust_per_motor_g is not None:
         print(

@@ -21,12 +21,12 @@ from collections.abc import AsyncIterator
 
 import numpy as np
 
-from mkflight.clock import NS_PER_S
 from mkflight.commands.interrupt import next_or_stop, stop_on_signals
 from mkflight.config import Config, load_config
+from mkflight.conversions import NS_PER_S
 from mkflight.io.serial import open_serial
 from mkflight.msgs import Scan
-from mkflight.urg.driver import UrgDriver, settings_from_config
+from mkflight.urg.driver import UrgDriver
 from mkflight.urg.hat import HatSettings, hat_height
 from mkflight.urg.units import SensorParams, step_body_angle_rad
 
@@ -100,7 +100,7 @@ async def _laser_scan(port: str | None, sim: bool, count: int, as_json: bool, cf
     t0_ns = time.monotonic_ns()
     async with _port(port, sim, cfg) as path:
         stream = await open_serial(path, URG_BAUDRATE)
-        async with UrgDriver(stream, settings_from_config(cfg.laser)) as driver:
+        async with UrgDriver(stream, cfg.laser) as driver:
             info = await driver.connect()
             if not as_json:
                 print(f"{info.summary} on {path}")

@@ -16,9 +16,10 @@ from collections.abc import AsyncIterator
 from mkflight.clock import MonotonicClock
 from mkflight.commands.interrupt import next_or_stop, stop_on_signals
 from mkflight.config import Config, load_config
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import LinkError
 from mkflight.io.serial import open_serial
-from mkflight.mk.link import NS_PER_S, LinkSettings, MkLink
+from mkflight.mk.link import LinkSettings, MkLink
 from mkflight.mk.units import MkCalibration
 from mkflight.msgs import ImuSample
 

@@ -21,6 +21,7 @@ from typing import Any
 
 from mkflight.cli_types import printable
 from mkflight.commands.progress import tty_bar
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import ReplayError
 from mkflight.logs.flight_json import json_safe
 from mkflight.mk.codec import FrameParser
@@ -55,7 +56,7 @@ def _decoded(wire: bytes | None) -> str:
 
 
 def _t(t_ns: int | None, start_ns: int) -> str:
-    return "-" if t_ns is None else f"{(t_ns - start_ns) / 1e9:.3f} s"
+    return "-" if t_ns is None else f"{(t_ns - start_ns) / NS_PER_S:.3f} s"
 
 
 def _command_lines(c: CommandComparison, start_ns: int, what_if: bool) -> list[str]:
@@ -147,10 +148,10 @@ def report_json(r: ReplayReport) -> dict[str, Any]:
             "frame": c.first.index + 1,
             "t_original_s": None
             if c.first.t_original_ns is None
-            else (c.first.t_original_ns - r.start_ns) / 1e9,
+            else (c.first.t_original_ns - r.start_ns) / NS_PER_S,
             "t_replayed_s": None
             if c.first.t_replayed_ns is None
-            else (c.first.t_replayed_ns - r.start_ns) / 1e9,
+            else (c.first.t_replayed_ns - r.start_ns) / NS_PER_S,
             "original": None
             if c.first.original is None
             else c.first.original.decode("ascii", "replace"),

@@ -43,10 +43,9 @@ import numpy as np
 import numpy.typing as npt
 
 from mkflight.commands.progress import tty_bar
-from mkflight.config import load_config
+from mkflight.config import LaserConfig, ScanmatchConfig, load_config
 from mkflight.errors import MkflightError, ProtocolError
 from mkflight.scanmatch import (
-    IcpParams,
     KeyframeMatcher,
     LaserRecord,
     MatchResult,
@@ -57,7 +56,6 @@ from mkflight.scanmatch import (
     read_carmen,
     scan_to_points,
 )
-from mkflight.scanmatch.icp import icp_params_from_config
 
 #: URG-04LX geometry (SPEC §2): 1024 steps per turn, step 384 straight ahead.
 URG_STEP_RAD = 2.0 * math.pi / 1024.0
@@ -161,11 +159,9 @@ def _lookup(ts: npt.NDArray[np.float64], t: float) -> int:
 def track_records(
     records: Sequence[LaserRecord],
     *,
-    scan_steps: tuple[int, int] = (150, 725),
+    scan_steps: tuple[int, int] = LaserConfig().scan_steps,
     odom: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None = None,
-    params: IcpParams | None = None,
-    keyframe_distance_m: float = 0.10,
-    keyframe_angle_rad: float = math.radians(10.0),
+    config: ScanmatchConfig | None = None,
     on_scan: Callable[[], None] | None = None,
 ) -> list[TrackedScan]:
     """Run the keyframe matcher over the records (pure apart from the clock read for timing).
@@ -174,9 +170,7 @@ def track_records(
         records: the log's laser records in file order.
         scan_steps: URG steps to use (inclusive) when the log is a URG log.
         odom: ``(t, poses)`` of an odometry trajectory for the motion prior, or None.
-        params: ICP tuning; defaults when None.
-        keyframe_distance_m: a new reference scan after this much motion...
-        keyframe_angle_rad: ...or this much turn.
+        config: the ``scanmatch`` section (ICP tuning, keyframe policy); defaults when None.
         on_scan: called once per scan (progress).
 
     Returns:
@@ -193,10 +187,8 @@ def track_records(
     )
     mount_inv = inverse(mount)
     matcher = KeyframeMatcher(
-        params,
+        config,
         start_pose=first.laser_pose,
-        keyframe_distance_m=keyframe_distance_m,
-        keyframe_angle_rad=keyframe_angle_rad,
         min_line_length_m=URG_MIN_LINE_LENGTH_M if urg else SPARSE_MIN_LINE_LENGTH_M,
     )
     out: list[TrackedScan] = []
@@ -262,16 +254,13 @@ def cmd_scanmatch(
         raise ProtocolError(msg)
     odom_data = read_trajectory(odom) if odom is not None else None
     steps = (int(cfg.laser.scan_steps[0]), int(cfg.laser.scan_steps[1]))
-    sm = cfg.scanmatch
     with tty_bar(len(parsed.records), "scan") as bar:
         tick = None if bar is None else (lambda: bar.update(1))
         tracked = track_records(
             parsed.records,
             scan_steps=steps,
             odom=odom_data,
-            params=icp_params_from_config(sm),
-            keyframe_distance_m=sm.keyframe_distance_m,
-            keyframe_angle_rad=sm.keyframe_angle_rad,
+            config=cfg.scanmatch,
             on_scan=tick,
         )
     if out is None:

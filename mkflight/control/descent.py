@@ -39,10 +39,10 @@ import math
 from collections import deque
 from dataclasses import dataclass, replace
 
-from mkflight.clock import NS_PER_S
 from mkflight.config import ControlConfig
 from mkflight.control.limits import gas_to_counts
 from mkflight.control.pid import clamp
+from mkflight.conversions import NS_PER_S
 
 MAX_ABS_VZ_MPS = 10.0
 """Vertical velocities beyond this are not believed (clamped): the gas stays finite."""

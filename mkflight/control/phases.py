@@ -36,6 +36,7 @@ from dataclasses import dataclass, replace
 
 from mkflight.config import ControlConfig
 from mkflight.control.controller import ControlMode, Setpoint
+from mkflight.conversions import S_PER_NS
 from mkflight.msgs import Estimate
 from mkflight.safety.failsafe import FailsafeAction
 
@@ -196,7 +197,11 @@ def phase_step(
     Returns:
         The next state and what to do with it.
     """
-    dt_s = 0.0 if state.t_ns is None else min(max(0.0, (t_ns - state.t_ns) * 1e-9), p.max_step_dt_s)
+    dt_s = (
+        0.0
+        if state.t_ns is None
+        else min(max(0.0, (t_ns - state.t_ns) * S_PER_NS), p.max_step_dt_s)
+    )
     phase, sp, start, land_since = (
         state.phase,
         state.setpoint,
@@ -224,7 +229,7 @@ def phase_step(
             est=est,
             last_gas_counts=last_gas_counts,
         )
-    elif phase is Phase.LANDED and (t_ns - start) * 1e-9 >= p.landed_idle_s:
+    elif phase is Phase.LANDED and (t_ns - start) * S_PER_NS >= p.landed_idle_s:
         ended = (Phase.RELEASED, "landed idle elapsed")
     if ended is not None:
         events.append(PhaseEvent(t_ns, phase, *ended))
@@ -268,7 +273,7 @@ def _asked_transition(
         return Phase.HANDSHAKE, "take-off request"
     if phase is Phase.HANDSHAKE:
         finite = all(math.isfinite(v) for v in (est.x_m, est.y_m, est.yaw_rad, est.height_m))
-        elapsed_s = (t_ns - state.phase_start_ns) * 1e-9
+        elapsed_s = (t_ns - state.phase_start_ns) * S_PER_NS
         if (
             elapsed_s >= p.handshake_s
             and requests.handshake_ok
@@ -311,6 +316,6 @@ def _fly(
     if not _landed_now(p, est, last_gas_counts):
         return sp, None, None
     land_since = t_ns if land_since is None else land_since
-    if (t_ns - land_since) * 1e-9 >= p.land_detect_s:
+    if (t_ns - land_since) * S_PER_NS >= p.land_detect_s:
         return sp, land_since, (Phase.LANDED, "land detected")
     return sp, land_since, None

@@ -44,8 +44,8 @@ import math
 from dataclasses import replace
 from typing import Final
 
-from mkflight.clock import NS_PER_S
 from mkflight.config import EstimationConfig
+from mkflight.conversions import NS_PER_S
 from mkflight.estimation.filter import (
     LaserVelocity,
     laser_velocity,

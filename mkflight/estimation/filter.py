@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from mkflight.clock import NS_PER_S
+from mkflight.conversions import NS_PER_S
 from mkflight.frames import world_to_body, wrap_pi
 from mkflight.msgs import Pose2D
 

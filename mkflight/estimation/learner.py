@@ -34,7 +34,7 @@ import math
 from dataclasses import dataclass
 from typing import Final
 
-from mkflight.clock import NS_PER_S
+from mkflight.conversions import NS_PER_S
 
 Vec3 = tuple[float, float, float]
 

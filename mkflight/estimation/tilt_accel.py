@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 from typing import Final
 
-from mkflight.clock import NS_PER_S
+from mkflight.conversions import NS_PER_S
 
 DISTURBANCE_STD_MPS2: Final = 0.25
 """Prior std of what the attitude misses (turbulence, drag), m/s^2 (the envelope's top)."""

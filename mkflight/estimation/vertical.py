@@ -33,7 +33,7 @@ import math
 from dataclasses import dataclass
 from typing import Final
 
-from mkflight.clock import NS_PER_S
+from mkflight.conversions import NS_PER_S
 
 DISTURBANCE_STD_MPS2: Final = 0.15
 """Prior std of what the thrust model misses (gusts, drag, its own error), m/s^2."""

@@ -20,11 +20,11 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from mkflight.clock import NS_PER_S
 from mkflight.config import Config
 from mkflight.control.altitude import hover_feedforward
 from mkflight.control.descent import Descent, DescentOutput, DescentParams
 from mkflight.control.limits import gas_to_counts
+from mkflight.conversions import NS_PER_S
 from mkflight.estimation.estimator import Estimator
 from mkflight.estimation.learner import (
     UPDATE_EVERY,

@@ -46,9 +46,10 @@ from typing import Any
 
 import structlog
 
-from mkflight.clock import NS_PER_S, Clock, MonotonicClock
+from mkflight.clock import Clock, MonotonicClock
 from mkflight.config import Config
 from mkflight.control.phases import Phase, PhaseRequests
+from mkflight.conversions import MS_PER_S, NS_PER_S
 from mkflight.errors import FlightError, LinkError, MkflightError, PreflightError
 from mkflight.eventlog import exception_text
 from mkflight.flight.flight_logs import FlightLogs
@@ -348,7 +349,7 @@ class FlightApp:
                 yaw_rad=None if r.pose is None else r.pose.yaw_rad,
                 height_m=r.height_m,
                 degenerate=r.degenerate,
-                match_ms=round(r.compute_s * 1000, 3),
+                match_ms=round(r.compute_s * MS_PER_S, 3),
             )
 
     def _handshake_ok(self) -> bool:

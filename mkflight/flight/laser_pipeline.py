@@ -42,9 +42,10 @@ import numpy as np
 import numpy.typing as npt
 
 from mkflight.config import Config
+from mkflight.conversions import NS_PER_S
 from mkflight.msgs import Pose2D, Scan
 from mkflight.scanmatch.geometry import FloatArray, Pose, wrap_angle
-from mkflight.scanmatch.icp import MatchResult, icp_params_from_config
+from mkflight.scanmatch.icp import MatchResult
 from mkflight.scanmatch.keyframe import KeyframeMatcher
 from mkflight.urg.hat import HatSettings, hat_height
 from mkflight.urg.units import URG_04LX
@@ -63,8 +64,6 @@ MAX_DT_S = 1.0
 #: A motion prior beyond these is not a motion between two scans: it is ignored.
 MAX_PRIOR_STEP_M = 2.0
 MAX_PRIOR_TURN_RAD = math.pi
-#: Nanoseconds per second (``t_ns`` differences to ``dt_s``).
-_NS_PER_S = 1e9
 
 IntArray = npt.NDArray[np.int64]
 
@@ -208,18 +207,13 @@ class LaserPipeline:
     def __init__(self, cfg: Config) -> None:
         self._laser = cfg.laser
         self._scanmatch = cfg.scanmatch
-        self._params = icp_params_from_config(cfg.scanmatch)
         self._hat = HatSettings(offset_m=cfg.laser.hat_offset_m, min_range_m=cfg.laser.min_range_m)
         self._matcher = self._new_matcher()
         self._prev_t_ns: int | None = None
         self._have_reference = False
 
     def _new_matcher(self) -> KeyframeMatcher:
-        return KeyframeMatcher(
-            self._params,
-            keyframe_distance_m=self._scanmatch.keyframe_distance_m,
-            keyframe_angle_rad=self._scanmatch.keyframe_angle_rad,
-        )
+        return KeyframeMatcher(self._scanmatch)
 
     def reset(self) -> None:
         """Forget every keyframe: the next valid scan defines a new world frame W (a new flight)."""
@@ -319,7 +313,7 @@ class LaserPipeline:
         """Seconds since the previous scan, None outside ``MIN_DT_S``..``MAX_DT_S``."""
         dt_s = None
         if self._prev_t_ns is not None:
-            dt_s = (t_ns - self._prev_t_ns) / _NS_PER_S
+            dt_s = (t_ns - self._prev_t_ns) / NS_PER_S
             dt_s = dt_s if MIN_DT_S <= dt_s <= MAX_DT_S else None
         self._prev_t_ns = t_ns
         return dt_s

@@ -17,7 +17,6 @@ from mkflight.io.stream import ByteStream, Tap
 from mkflight.mk.link import LinkSettings, MkLink
 from mkflight.mk.units import MkCalibration
 from mkflight.urg.driver import UrgDriver
-from mkflight.urg.driver_types import settings_from_config
 
 URG_BAUDRATE = 115200  # USB CDC-ACM ignores it (scip2.md §1)
 
@@ -88,6 +87,6 @@ async def open_laser(
         mark(path)
         return again
 
-    driver = UrgDriver(stream, settings_from_config(cfg.laser), clock, reopen=reopen, tap=tap)
+    driver = UrgDriver(stream, cfg.laser, clock, reopen=reopen, tap=tap)
     driver.start()
     return driver

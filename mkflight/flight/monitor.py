@@ -19,9 +19,9 @@ import math
 import time
 from dataclasses import dataclass, field
 
-from mkflight.clock import NS_PER_S
 from mkflight.control.controller import Setpoint
 from mkflight.control.phases import Phase
+from mkflight.conversions import MS_PER_S, NS_PER_S
 from mkflight.msgs import Estimate
 
 SETTLE_S = 3.0
@@ -112,7 +112,7 @@ class GcWatch:
         if phase == "start":
             self._t0 = time.perf_counter()
             return
-        pause_ms = (time.perf_counter() - self._t0) * 1000.0
+        pause_ms = (time.perf_counter() - self._t0) * MS_PER_S
         self.collections += 1
         self.full_collections += info.get("generation") == 2
         self.max_pause_ms = max(self.max_pause_ms, pause_ms)

@@ -26,6 +26,7 @@ import math
 import statistics
 from dataclasses import dataclass
 
+from mkflight.conversions import MS_PER_S, NS_PER_MS, NS_PER_S
 from mkflight.errors import LinkError, PreflightError
 from mkflight.flight.laser_pipeline import LaserResult
 from mkflight.flight.matcher_worker import MatcherError, MatcherWorker
@@ -97,10 +98,15 @@ async def check_fc(link: MkLink, warn_voltage_v: float) -> tuple[VersionInfo, li
         got = len(samples)
         msg = f"{got} of {RATE_SAMPLES} DebugOut samples from {link.port}: {err}"
         raise PreflightError(check="DebugOut rate", detail=msg) from err
-    period_s = statistics.median((b.t_ns - a.t_ns) / 1e9 for a, b in itertools.pairwise(samples))
+    period_s = statistics.median(
+        (b.t_ns - a.t_ns) / NS_PER_S for a, b in itertools.pairwise(samples)
+    )
     lo, hi = DEBUG_PERIOD_RANGE_S
     if not lo <= period_s <= hi:
-        msg = f"median interval {period_s * 1000:.1f} ms, expected {lo * 1000:g}-{hi * 1000:g}"
+        msg = (
+            f"median interval {period_s * MS_PER_S:.1f} ms, "
+            f"expected {lo * MS_PER_S:g}-{hi * MS_PER_S:g}"
+        )
         raise PreflightError(check="DebugOut rate", detail=msg)
     last = samples[-1]
     if not (abs(last.pitch_rad) <= MAX_LEVEL_RAD and abs(last.roll_rad) <= MAX_LEVEL_RAD):
@@ -133,10 +139,13 @@ async def check_laser(driver: UrgDriver) -> tuple[UrgInfo, list[Scan]]:
     except LinkError as err:
         msg = f"{len(scans)} of {RATE_SCANS} scans from {driver.port}: {err}"
         raise PreflightError(check="scan rate", detail=msg) from err
-    period_s = statistics.median((b.t_ns - a.t_ns) / 1e9 for a, b in itertools.pairwise(scans))
+    period_s = statistics.median((b.t_ns - a.t_ns) / NS_PER_S for a, b in itertools.pairwise(scans))
     lo, hi = SCAN_PERIOD_RANGE_S
     if not lo <= period_s <= hi:
-        msg = f"median interval {period_s * 1000:.1f} ms, expected {lo * 1000:g}-{hi * 1000:g}"
+        msg = (
+            f"median interval {period_s * MS_PER_S:.1f} ms, "
+            f"expected {lo * MS_PER_S:g}-{hi * MS_PER_S:g}"
+        )
         raise PreflightError(check="scan rate", detail=msg)
     return info, scans
 
@@ -179,4 +188,4 @@ def period_ms(times_ns: list[int]) -> float:
     """The median interval of timestamps (ns), in ms; NaN for fewer than two."""
     if len(times_ns) < 2:
         return math.nan
-    return statistics.median((b - a) / 1e6 for a, b in itertools.pairwise(times_ns))
+    return statistics.median((b - a) / NS_PER_MS for a, b in itertools.pairwise(times_ns))

@@ -20,10 +20,10 @@ from collections.abc import Mapping
 from typing import Final, Self
 
 from mkflight.clock import Clock, MonotonicClock
+from mkflight.conversions import NS_PER_US, US_PER_S
 
 __all__ = ["Notifier"]
 
-_US_PER_S: Final = 1_000_000
 #: Longest STATUS text sent, in UTF-8 bytes (systemd shows one short line anyway).
 MAX_STATUS_BYTES: Final = 1024
 
@@ -62,8 +62,8 @@ class Notifier:
         self.watchdog_interval_s: float | None = None
         self._min_ping_gap_ns = 0
         if watchdog_usec is not None and watchdog_usec > 0:
-            self.watchdog_interval_s = watchdog_usec / _US_PER_S / 2
-            self._min_ping_gap_ns = watchdog_usec * 1_000 // 4  # interval / 2, in ns
+            self.watchdog_interval_s = watchdog_usec / US_PER_S / 2
+            self._min_ping_gap_ns = watchdog_usec * NS_PER_US // 4  # interval / 2, in ns
         self._last_ping_ns: int | None = None
 
     @classmethod

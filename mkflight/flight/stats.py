@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from mkflight.conversions import NS_PER_MS, NS_PER_S
+
 OVERRUN_S = 0.010
 """A step that takes longer than this (arrival to done) is an overrun: 1/5 of the period."""
 MISSED_FACTOR = 1.5
@@ -114,18 +116,18 @@ class StepStats:
             self.latency_ns.append(max(0, written_ns - arrival_ns))
         busy = max(0, done_ns - arrival_ns)
         self.busy_ns.append(busy)
-        if busy > OVERRUN_S * 1e9:
+        if busy > OVERRUN_S * NS_PER_S:
             self.overruns += 1
 
     def last_latency_ms(self) -> float:
         """The newest step's latency (ms), NaN before the first."""
-        return self.latency_ns.last() / 1e6 if len(self.latency_ns) else math.nan
+        return self.latency_ns.last() / NS_PER_MS if len(self.latency_ns) else math.nan
 
     def summary(self) -> dict[str, float | int]:
         """Medians and percentiles in ms, counts; for ``flight.json`` and the benchmarks."""
-        lat: list[float] = (self.latency_ns.values() / 1e6).tolist()
-        per: list[float] = (self.period_ns.values() / 1e6).tolist()
-        busy: list[float] = (self.busy_ns.values() / 1e6).tolist()
+        lat: list[float] = (self.latency_ns.values() / NS_PER_MS).tolist()
+        per: list[float] = (self.period_ns.values() / NS_PER_MS).tolist()
+        busy: list[float] = (self.busy_ns.values() / NS_PER_MS).tolist()
         median_period = percentile(per, 50)
         jitter = [abs(p - median_period) for p in per]
         missed = sum(1 for p in per if p > MISSED_FACTOR * median_period)

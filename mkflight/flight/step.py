@@ -44,7 +44,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
-from mkflight.clock import NS_PER_S
 from mkflight.config import Config
 from mkflight.control.controller import Controller, ControlMode, Setpoint
 from mkflight.control.phases import (
@@ -57,6 +56,7 @@ from mkflight.control.phases import (
     PhaseState,
     phase_step,
 )
+from mkflight.conversions import NS_PER_S
 from mkflight.estimation.estimator import Estimator
 from mkflight.flight.airframe import FlightAirframe
 from mkflight.flight.step_rules import (

@@ -23,9 +23,9 @@ import enum
 import math
 from dataclasses import dataclass, replace
 
-from mkflight.clock import NS_PER_S
 from mkflight.control.controller import ControlOutput, Setpoint
 from mkflight.control.phases import FLYING_PHASES, Phase, PhaseOutput, PhaseRequests
+from mkflight.conversions import NS_PER_S
 from mkflight.estimation.records import LaserStep
 from mkflight.logs.table3 import Table3Row
 from mkflight.logs.table4 import Table4Row

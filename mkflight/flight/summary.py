@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING, Any
 
-from mkflight.clock import NS_PER_S
+from mkflight.conversions import MS_PER_S, NS_PER_S
 
 if TYPE_CHECKING:
     from mkflight.flight.app import FlightApp
@@ -42,7 +42,7 @@ def flight_summary(app: FlightApp, error: BaseException | None, released: bool) 
         "gc": app.gc_watch.summary(),
         "matcher": {
             "scans": app.matches,
-            "cpu_ms_per_scan": round(1000 * app.monitor.matcher_cpu_s / app.matches, 3)
+            "cpu_ms_per_scan": round(MS_PER_S * app.monitor.matcher_cpu_s / app.matches, 3)
             if app.matches
             else None,
         },

@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING
 
 import structlog
 
-from mkflight.clock import NS_PER_S
 from mkflight.control.phases import Phase
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import FlightError, LinkError
 from mkflight.flight.matcher_worker import MatcherError
 from mkflight.safety.failsafe import StopRequest

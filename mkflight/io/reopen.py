@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import structlog
 
-from mkflight.clock import NS_PER_S
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import LinkError
 from mkflight.io.stream import ByteStream, Opener
 

@@ -36,6 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mkflight.config import MkConfig
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import ProtocolError, ReplayError
 from mkflight.logs import events as events_log
 from mkflight.logs import flight_json, table3, table4
@@ -66,7 +67,6 @@ _SIGNATURE: Final = {"mk": b"#", "laser": b"\n\n"}
 _SIGNATURE_TEXT: Final = {"mk": "FlightCtrl frames ('#')", "laser": "SCIP replies (LF LF)"}
 _RAW_NAME: Final = {"mk": "mk.raw", "laser": "laser.raw"}
 
-NS_PER_S: Final = 1e9
 MK_RAW: Final = "mk.raw"
 LASER_RAW: Final = "laser.raw"
 TRUTH: Final = "truth.txt"  # as mkflight.flight.flight_logs.TRUTH_FILE

@@ -51,6 +51,7 @@ from pathlib import Path
 from typing import BinaryIO, Final, Self
 
 from mkflight.clock import Clock, MonotonicClock
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import ReplayError
 from mkflight.logs._file import read_bytes
 
@@ -81,7 +82,7 @@ _RECORD = struct.Struct("<qcI")  # t_ns, kind, payload length
 _MAX_LABEL_BYTES: Final = 0xFFFF
 _MAX_PAYLOAD_BYTES: Final = 0xFFFF_FFFF
 #: Records are in time order; one more than a day after the previous is corrupt.
-_MAX_GAP_NS: Final = 86_400 * 1_000_000_000
+_MAX_GAP_NS: Final = 86_400 * NS_PER_S
 
 #: Opens the recording's file; the default creates it (never overwrites) unbuffered.
 FileOpener = Callable[[Path], BinaryIO]

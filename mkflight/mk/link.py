@@ -28,11 +28,12 @@ from collections.abc import Callable
 import structlog
 
 from mkflight.clock import Clock, MonotonicClock
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import LinkError, ProtocolError
 from mkflight.io.reopen import open_with_backoff
 from mkflight.io.stream import ByteStream
 from mkflight.mk.codec import ADDR_FC, Frame, FrameParser
-from mkflight.mk.link_types import NS_PER_S, LinkSettings, LinkStats, Opener, Tap
+from mkflight.mk.link_types import LinkSettings, LinkStats, Opener, Tap
 from mkflight.mk.messages import (
     CMD_CONFIRM,
     CMD_DEBUG_ANSWER,
@@ -53,7 +54,7 @@ from mkflight.mk.subscription import DebugSubscription
 from mkflight.mk.units import MkCalibration
 from mkflight.msgs import ImuSample
 
-__all__ = ["NS_PER_S", "LinkSettings", "LinkStats", "MkLink"]
+__all__ = ["LinkSettings", "LinkStats", "MkLink"]
 
 log = structlog.get_logger("mkflight.mk")
 

@@ -1,44 +1,53 @@
-"""The MK link's settings and counters (split from :mod:`mkflight.mk.link`)."""
+"""The MK link's settings and counters (:mod:`mkflight.mk.link` re-exports them)."""
 
 from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Final
 
-from mkflight.clock import NS_PER_S
 from mkflight.config import Config
+from mkflight.conversions import NS_PER_MS
 from mkflight.io.stream import Opener, Tap
 from mkflight.mk.codec import ParserStats
 
-__all__ = ["NS_PER_S", "LinkSettings", "LinkStats", "Opener", "Tap"]
+__all__ = ["STICK_MAX_COUNTS", "LinkSettings", "LinkStats", "Opener", "Tap"]
+
+STICK_MAX_COUNTS: Final = 127
+"""Largest nick/roll/yaw magnitude the link sends (SPEC §4)."""
 
 
 @dataclass(frozen=True, slots=True)
 class LinkSettings:
-    """The link's timing and limits, from ``config.mk``, ``config.safety``, ``config.control``.
+    """The link's timing and limits: ``config.mk``, two of ``config.safety``, one of ``control``.
 
-    ``gas_max`` and ``stick_max_counts`` make the link the last gate on outgoing commands
-    (SPEC §4: gas in [0, gas_max], nick/roll within +-127) whatever the caller computed.
+    No defaults: :meth:`from_config` is the one way to build it, so every value has one
+    home, the configuration. ``gas_max`` and ``stick_max_counts`` make the link the last
+    gate on outgoing commands (SPEC §4: gas in [0, gas_max], nick/roll within
+    +-:data:`STICK_MAX_COUNTS`) whatever the caller computed.
     """
 
-    baudrate: int = 57600
-    debug_interval_10ms: int = 5
-    resubscribe_s: float = 1.3
-    stale_s: float = 0.2
-    release_after_stale_s: float = 1.0
-    version_retry_s: float = 0.5
-    answer_timeout_s: float = 2.0
-    min_frame_gap_s: float = 0.003
-    release_frames: int = 5
-    release_interval_s: float = 0.05
-    reopen_backoff_s: float = 0.1
-    reopen_backoff_max_s: float = 2.0
-    gas_max: int = 130
-    stick_max_counts: int = 127
+    baudrate: int
+    debug_interval_10ms: int
+    resubscribe_s: float
+    stale_s: float
+    """``safety.mk_stale_s``: no DebugOut for this long is stale data."""
+    release_after_stale_s: float
+    """``safety.mk_release_s``: stale this long, control goes back to the pilot."""
+    version_retry_s: float
+    answer_timeout_s: float
+    min_frame_gap_s: float
+    release_frames: int
+    release_interval_s: float
+    reopen_backoff_s: float
+    reopen_backoff_max_s: float
+    gas_max: int
+    """``control.gas_max``."""
+    stick_max_counts: int
 
     @classmethod
     def from_config(cls, cfg: Config) -> LinkSettings:
-        """Take the settings from a loaded configuration."""
+        """The link's values from the three sections of ``cfg`` that hold them."""
         mk = cfg.mk
         return cls(
             baudrate=mk.baudrate,
@@ -54,6 +63,7 @@ class LinkSettings:
             reopen_backoff_s=mk.reopen_backoff_s,
             reopen_backoff_max_s=mk.reopen_backoff_max_s,
             gas_max=cfg.control.gas_max,
+            stick_max_counts=STICK_MAX_COUNTS,
         )
 
 
@@ -85,7 +95,7 @@ class LinkStats:
     def summary(self) -> dict[str, int | float | None]:
         """Flat counters for logs and ``flight.json``."""
         rtts = sorted(self.rtt_ns)
-        median = rtts[len(rtts) // 2] / 1e6 if rtts else None
+        median = rtts[len(rtts) // 2] / NS_PER_MS if rtts else None
         return {
             "bytes_in": self.parser.bytes_in,
             "frames_in": self.parser.frames,

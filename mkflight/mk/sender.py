@@ -32,9 +32,10 @@ from collections.abc import Callable
 import structlog
 
 from mkflight.clock import Clock
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import CommandRangeError, LinkError
 from mkflight.mk.codec import ADDR_FC, encode_frame
-from mkflight.mk.link_types import NS_PER_S, LinkSettings, LinkStats
+from mkflight.mk.link_types import LinkSettings, LinkStats
 from mkflight.mk.messages import CMD_EXTERN, EC_VALID, EXTERN_FRAME_OFFSET, ExternControl
 from mkflight.mk.outbox import Outbox, Writer
 

@@ -29,9 +29,10 @@ from collections.abc import Callable
 import structlog
 
 from mkflight.clock import Clock
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import CommandRangeError, LinkError
 from mkflight.io.stream import resolve_waiter
-from mkflight.mk.link_types import NS_PER_S, LinkSettings, LinkStats
+from mkflight.mk.link_types import LinkSettings, LinkStats
 from mkflight.mk.messages import DebugOut, ExternControl, debug_request, version_request
 from mkflight.mk.sender import CommandSender
 from mkflight.mk.units import MkCalibration, imu_from_debug

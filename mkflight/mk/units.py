@@ -1,9 +1,10 @@
-"""MK raw DebugOut values <-> SI (SPEC §1 table; seed §D eq 7-8, TABLE I/II).
+"""MK raw DebugOut values <-> SI (SPEC §1 table).
 
-Signs: the MK's AngleNick/AngleRoll are positive nose down / left side down, ours
+The conversions are those of the 2011 QUT CyPhy MikroKopter documentation, §D eq 7-8,
+TABLE I/II. Signs: the MK's AngleNick/AngleRoll are positive nose down / left side down, ours
 (FRD) positive nose up / right side down, hence the minus signs. At rest the vehicle
 measures the specific force f = (g sin(pitch), -g sin(roll) cos(pitch), -g cos(roll)
-cos(pitch)), so AccNick reads -k_nick sin(pitch) (seed eq 7, TABLE I) and AccRoll
+cos(pitch)), so AccNick reads -k_nick sin(pitch) (eq 7, TABLE I) and AccRoll
 -k_roll sin(roll) cos(pitch). AccZ is eq 8's upward value minus 9.8, in 1/15.5 m/s^2.
 Gyro Compass is a clockwise heading in degrees, like our psi.
 """

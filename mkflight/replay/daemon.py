@@ -27,8 +27,8 @@ import asyncio
 from collections.abc import Callable
 from typing import Any
 
-from mkflight.clock import NS_PER_S
 from mkflight.config import Config
+from mkflight.conversions import NS_PER_S
 from mkflight.flight.app import FlightApp, FlightOptions
 from mkflight.flight.laser_pipeline import LaserResult
 from mkflight.flight.matcher_worker import MatcherWorker

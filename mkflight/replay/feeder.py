@@ -35,7 +35,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from mkflight.clock import NS_PER_S
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import LinkError, PortNotFoundError, ReplayError
 from mkflight.io.pty import PtyDevice
 from mkflight.io.stream import ByteStream

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mkflight.conversions import NS_PER_S, NS_PER_US
 from mkflight.errors import ReplayError
 from mkflight.logs.events import read_events
 from mkflight.logs.flight import check_port_contents
@@ -41,7 +42,7 @@ PORTS = ("mk", "laser")
 RAW_FILES = {"mk": "mk.raw", "laser": "laser.raw"}
 #: A recording whose last record comes this long before the other's (and is not a port
 #: loss, 'c') was cut short: a flight ends both within a few tens of ms.
-EARLY_END_NS = 1_000_000_000
+EARLY_END_NS = NS_PER_S
 
 #: Stop requests that came from outside the daemon: the replay repeats them.
 EXTERNAL_STOPS = frozenset({StopRequest.SIGINT, StopRequest.SIGTERM, StopRequest.DURATION})
@@ -89,7 +90,7 @@ class RecordedScan:
             return None
         if self.due_ns is None:
             return self.got_ns
-        return min(self.got_ns, self.due_ns - 1_000)
+        return min(self.got_ns, self.due_ns - NS_PER_US)
 
 
 @dataclass(slots=True)
@@ -123,7 +124,7 @@ class RecordedFlight:
     @property
     def duration_s(self) -> float:
         """Recorded time from the first to the last record, s."""
-        return (self.end_ns - self.start_ns) / 1e9
+        return (self.end_ns - self.start_ns) / NS_PER_S
 
 
 def _check_time(t_ns: int, where: str) -> None:
@@ -245,8 +246,8 @@ def _intact_end(recordings: dict[str, RawRecording], warnings: list[str]) -> int
             continue
         where = f"byte {rec.truncated_at}" if rec.truncated_at is not None else "its last record"
         warnings.append(
-            f"{rec.path}: ends early, at {(end.t_ns - start_ns) / 1e9:.2f} s of "
-            f"{(last_ns - start_ns) / 1e9:.2f} s ({where}): the replay plays what "
+            f"{rec.path}: ends early, at {(end.t_ns - start_ns) / NS_PER_S:.2f} s of "
+            f"{(last_ns - start_ns) / NS_PER_S:.2f} s ({where}): the replay plays what "
             "follows without it and checks commands and tables only up to there"
         )
         early = end.t_ns if early is None else min(early, end.t_ns)
@@ -258,10 +259,10 @@ def _first_subscribe(mk: RawRecording, ready_ns: int | None) -> int | None:
     if ready_ns is None:
         return None
     for r in mk.records:
-        if r.kind == "w" and ready_ns <= r.t_ns <= ready_ns + 1_000_000_000:
+        if r.kind == "w" and ready_ns <= r.t_ns <= ready_ns + NS_PER_S:
             if r.data[2:3] == b"d":
                 return r.t_ns
-        elif r.t_ns > ready_ns + 1_000_000_000:
+        elif r.t_ns > ready_ns + NS_PER_S:
             break
     return None
 

@@ -35,6 +35,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mkflight.config import Config
+from mkflight.conversions import NS_PER_S
 from mkflight.flight.laser_pipeline import LaserResult
 from mkflight.flight.matcher_worker import MatcherWorker
 from mkflight.mk.messages import DebugOut
@@ -140,7 +141,7 @@ def seed_scene(cfg: Config, laser: npt.NDArray[np.void], clock: SeedClock) -> Ro
         row = laser[clock.laser_row(t_ns)]
         height = hold_m if clock.start_ns is not None and t_ns >= clock.start_ns else 0.0
         if clock.end_ns is not None and t_ns > clock.end_ns:
-            height = max(0.0, hold_m - DESCENT_MPS * (t_ns - clock.end_ns) / 1e9)
+            height = max(0.0, hold_m - DESCENT_MPS * (t_ns - clock.end_ns) / NS_PER_S)
         return ScenePose(
             x_m=float(row["CurrentPosition.x"]),
             y_m=float(row["CurrentPosition.y"]),
@@ -156,7 +157,7 @@ def seed_scene(cfg: Config, laser: npt.NDArray[np.void], clock: SeedClock) -> Ro
 def seed_urg(cfg: Config, laser: npt.NDArray[np.void], clock: SeedClock, t_ns: int) -> UrgModel:
     """The emulated URG-04LX in :func:`seed_scene`, powered up at ``t_ns``."""
     return UrgModel(
-        seed_scene(cfg, laser, clock), t_ns=t_ns, delivery_delay_ns=round(USB_DELAY_S * 1e9)
+        seed_scene(cfg, laser, clock), t_ns=t_ns, delivery_delay_ns=round(USB_DELAY_S * NS_PER_S)
     )
 
 

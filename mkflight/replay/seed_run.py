@@ -18,6 +18,7 @@ import numpy.typing as npt
 
 from mkflight.config import Config, load_config
 from mkflight.control.phases import Phase
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import ReplayError
 from mkflight.flight.app import FlightOptions
 from mkflight.flight.step import ImuStepOutput
@@ -44,12 +45,12 @@ from mkflight.replay.session import out_dir_for, run_lockstep
 from mkflight.replay.vloop import VirtualClock
 from mkflight.safety.failsafe import StopRequest
 
-SEED_START_NS = 1_000 * 1_000_000_000  # the lock-step clock of such a replay starts here (any)
+SEED_START_NS = 1_000 * NS_PER_S  # the lock-step clock of such a replay starts here (any)
 #: The tables start at take-off; a daemon still on the ground this long after the start
 #: never takes off (e.g. TABLE III's first pose is NaN or far outside the room: no valid
 #: fix), and the replay, which would otherwise run on forever, ends (one normally takes
 #: off about 2.5 s in).
-TAKEOFF_TIMEOUT_NS = 30 * 1_000_000_000
+TAKEOFF_TIMEOUT_NS = 30 * NS_PER_S
 
 
 def is_seed_folder(folder: Path) -> bool:
@@ -135,7 +136,7 @@ class _TakeoffWatch:
             and self.clock.now_ns() > SEED_START_NS + TAKEOFF_TIMEOUT_NS
         ):
             app.request_stop(
-                StopRequest.DURATION, f"no take-off in {TAKEOFF_TIMEOUT_NS // 1_000_000_000} s"
+                StopRequest.DURATION, f"no take-off in {TAKEOFF_TIMEOUT_NS // NS_PER_S} s"
             )
 
 
@@ -210,7 +211,7 @@ def replay_seed(
     wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
     if seed_clock.start_ns is None:
         warnings.append(
-            f"the replayed daemon did not take off within {TAKEOFF_TIMEOUT_NS / 1e9:.0f} s: "
+            f"the replayed daemon did not take off within {TAKEOFF_TIMEOUT_NS / NS_PER_S:.0f} s: "
             f"no TABLE IV row was played (is {folder / 'laser_100ms.log'}'s first pose valid?)"
         )
     elif fc.rows_sent < len(imu_seed):
@@ -226,7 +227,7 @@ def replay_seed(
         tables=[],
         overrides=overrides,
         rematch=True,
-        recorded_s=(clock.now_ns() - SEED_START_NS) / 1e9,
+        recorded_s=(clock.now_ns() - SEED_START_NS) / NS_PER_S,
         wall_s=wall_s,
         cpu_s=cpu_s,
         feed=feeder.stats,

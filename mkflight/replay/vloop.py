@@ -24,7 +24,7 @@ import selectors
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol, TypeVar
 
-from mkflight.clock import NS_PER_S
+from mkflight.conversions import NS_PER_S
 
 T = TypeVar("T")
 

@@ -48,6 +48,7 @@ import math
 from dataclasses import dataclass
 
 from mkflight.config import SafetyConfig
+from mkflight.conversions import S_PER_NS
 
 HOLD_LAND_S = 1.0
 """Default time from HOLD (box, height) to LAND; SPEC §5 says "hold, then land"."""
@@ -227,7 +228,7 @@ class Failsafe:
         """Evaluate every check at ``inp.t_ns`` and return the action (SPEC §5)."""
         s = self.safety
         t = inp.t_ns
-        dt_s = 0.0 if self._last_t_ns is None else max(0.0, (t - self._last_t_ns) * 1e-9)
+        dt_s = 0.0 if self._last_t_ns is None else max(0.0, (t - self._last_t_ns) * S_PER_NS)
         self._last_t_ns = t
         events: list[TransitionEvent] = []
         active: list[tuple[Cause, str]] = []
@@ -303,7 +304,7 @@ class Failsafe:
         self, cause: Cause, t_ns: int, detail: str, events: list[TransitionEvent]
     ) -> None:
         lat = self._latched[cause]
-        elapsed_s = max(0.0, (t_ns - lat.since_ns) * 1e-9)
+        elapsed_s = max(0.0, (t_ns - lat.since_ns) * S_PER_NS)
         new = self._timeline_action(cause, elapsed_s)
         if new > lat.action:  # latched: never goes back down
             self._latched[cause] = _Latched(lat.since_ns, new)

@@ -31,14 +31,12 @@ from mkflight.scanmatch.geometry import (
     transform_points,
     wrap_angle,
 )
-from mkflight.scanmatch.icp import DEGENERACY_THRESHOLD, IcpParams, MatchResult, match
+from mkflight.scanmatch.icp import MatchResult, match
 from mkflight.scanmatch.keyframe import KeyframeMatcher, TrackUpdate
 
 __all__ = [
-    "DEGENERACY_THRESHOLD",
     "IDENTITY",
     "CarmenLog",
-    "IcpParams",
     "KeyframeMatcher",
     "LaserRecord",
     "MalformedLine",

@@ -30,6 +30,8 @@ import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 FloatArray = npt.NDArray[np.float64]
+IndexArray = npt.NDArray[np.intp]
+BoolArray = npt.NDArray[np.bool_]
 Pose = tuple[float, float, float]
 
 IDENTITY: Pose = (0.0, 0.0, 0.0)
@@ -37,6 +39,13 @@ IDENTITY: Pose = (0.0, 0.0, 0.0)
 #: Half-widths (in beams) of the scan-order windows tried for each reference line, smallest
 #: first; a point takes the smallest window whose chord reaches ``min_line_length_m``.
 LINE_HALF_WINDOWS = (1, 2, 4, 8, 16)
+#: Shortest chord of a line window, for the URG's dense 0.35-degree beams with 1 cm noise
+#: (close, densely sampled walls get wide windows, so the noise does not tilt the normal).
+MIN_LINE_LENGTH_M = 0.12
+#: Largest distance between consecutive points inside a line window (a jump edge).
+MAX_LINE_GAP_M = 0.5
+#: Largest RMS distance of a window's points from its line, and of its centre point.
+MAX_LINE_RMS_M = 0.03
 
 
 def wrap_angle(angle_rad: float) -> float:
@@ -77,14 +86,15 @@ def transform_points(points_xy: FloatArray, pose: Pose) -> FloatArray:
 def scan_to_points(
     ranges_m: npt.ArrayLike,
     angles_rad: npt.ArrayLike,
-    min_range_m: float = 0.02,
-    max_range_m: float = 5.6,
+    min_range_m: float,
+    max_range_m: float,
 ) -> FloatArray:
     """Cartesian points of the valid beams, in scan order, in the sensor frame.
 
     Valid means finite and ``min_range_m <= r < max_range_m`` (SPEC §2: URG values below
     20 mm are error codes, not distances). The caller chooses which beams to pass (e.g. only
-    ``laser.scan_steps`` for URG data, so the laser hat and the mirror edge never enter).
+    ``laser.scan_steps`` for URG data, so the laser hat and the mirror edge never enter),
+    and the range window (``laser.min_range_m`` and ``max_range_m`` for URG data).
 
     Args:
         ranges_m: (N,) ranges in metres; NaN or out-of-range values are dropped.
@@ -128,12 +138,99 @@ class ReferenceScan:
         return int(self.centers_xy.shape[0])
 
 
+@dataclass(frozen=True, slots=True)
+class _PrefixSums:
+    """Cumulative sums over a scan in scan order: any window's moments in O(1).
+
+    ``c*`` start with a 0, so the sum over points ``lo .. hi-1`` is ``c[hi] - c[lo]``;
+    ``cbig`` counts the gaps between consecutive points that exceed the jump-edge limit.
+    """
+
+    x: FloatArray
+    y: FloatArray
+    cx: FloatArray
+    cy: FloatArray
+    cxx: FloatArray
+    cxy: FloatArray
+    cyy: FloatArray
+    cbig: FloatArray
+
+    @classmethod
+    def of(cls, pts: FloatArray, max_gap_m: float) -> _PrefixSums:
+        """The sums of the (N, 2) points ``pts``, gaps above ``max_gap_m`` counted."""
+        x, y = pts[:, 0], pts[:, 1]
+        zero = np.zeros(1)
+        gaps = np.hypot(np.diff(x), np.diff(y))
+        return cls(
+            x=x,
+            y=y,
+            cx=np.concatenate((zero, np.cumsum(x))),
+            cy=np.concatenate((zero, np.cumsum(y))),
+            cxx=np.concatenate((zero, np.cumsum(x * x))),
+            cxy=np.concatenate((zero, np.cumsum(x * y))),
+            cyy=np.concatenate((zero, np.cumsum(y * y))),
+            cbig=np.concatenate((zero, np.cumsum(gaps > max_gap_m, dtype=np.float64))),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class _WindowLines:
+    """The line fitted to every window of one half-width ``w`` (points ``i-w .. i+w``).
+
+    Attributes:
+        mid: index of each window's centre point.
+        ok: the window qualifies (chord, no jump edge, straight, centre on the line).
+        mx: x of each window's centroid, m.
+        my: y of the same, m.
+        phi: direction of each window's largest principal axis, rad.
+    """
+
+    mid: IndexArray
+    ok: BoolArray
+    mx: FloatArray
+    my: FloatArray
+    phi: FloatArray
+
+
+def _window_lines(
+    s: _PrefixSums, w: int, min_chord_m: float | None, max_line_rms_m: float
+) -> _WindowLines:
+    """Fit every window of half-width ``w`` by principal components (see build_reference).
+
+    ``min_chord_m`` None: no minimum chord (the widest window: better a short line than
+    none).
+    """
+    n = int(s.x.shape[0])
+    m = 2 * w + 1
+    lo = np.arange(0, n - 2 * w)  # window [lo, lo + m)
+    hi = lo + m
+    mid = lo + w
+    mx = (s.cx[hi] - s.cx[lo]) / m
+    my = (s.cy[hi] - s.cy[lo]) / m
+    sxx = (s.cxx[hi] - s.cxx[lo]) / m - mx * mx
+    sxy = (s.cxy[hi] - s.cxy[lo]) / m - mx * my
+    syy = (s.cyy[hi] - s.cyy[lo]) / m - my * my
+    half_tr = 0.5 * (sxx + syy)
+    disc = np.sqrt(np.maximum(0.25 * (sxx - syy) ** 2 + sxy * sxy, 0.0))
+    lam_min = half_tr - disc
+    no_jump = (s.cbig[hi - 1] - s.cbig[lo]) == 0
+    ok = no_jump & (lam_min <= max_line_rms_m * max_line_rms_m)
+    if min_chord_m is not None:
+        ok &= np.hypot(s.x[hi - 1] - s.x[lo], s.y[hi - 1] - s.y[lo]) >= min_chord_m
+    # Direction of the largest principal axis; the normal is perpendicular to it.
+    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    # The window's own centre point must lie on the line too (not so at a corner).
+    off = np.abs(np.cos(phi) * (s.y[mid] - my) - np.sin(phi) * (s.x[mid] - mx))
+    ok &= off <= max_line_rms_m
+    return _WindowLines(mid, ok, mx, my, phi)
+
+
 def build_reference(
     points_xy: FloatArray,
     *,
-    min_line_length_m: float = 0.12,
-    max_gap_m: float = 0.5,
-    max_line_rms_m: float = 0.03,
+    min_line_length_m: float = MIN_LINE_LENGTH_M,
+    max_gap_m: float = MAX_LINE_GAP_M,
+    max_line_rms_m: float = MAX_LINE_RMS_M,
     half_windows: tuple[int, ...] = LINE_HALF_WINDOWS,
 ) -> ReferenceScan | None:
     """Fit a local line to every point of a scan and index the lines in a KD-tree.
@@ -143,11 +240,10 @@ def build_reference(
     cumulative sums: no Python loop over points). A window qualifies when its chord (first
     to last point) is at least ``min_line_length_m`` (waived for the widest window) -- so
     close, densely sampled walls get wide windows and the 1 cm range noise does not tilt
-    the normal -- no gap between
-    consecutive points exceeds ``max_gap_m`` (a jump edge), and both the RMS distance of
-    the points from the fitted line and the centre point's own distance from it are at
-    most ``max_line_rms_m`` (a corner or clutter).
-    Points with no qualifying window are dropped: they would give wrong normals.
+    the normal -- no gap between consecutive points exceeds ``max_gap_m`` (a jump edge),
+    and both the RMS distance of the points from the fitted line and the centre point's own
+    distance from it are at most ``max_line_rms_m`` (a corner or clutter). Points with no
+    qualifying window are dropped: they would give wrong normals.
 
     Args:
         points_xy: (N, 2) valid points in scan order (from :func:`scan_to_points`).
@@ -163,50 +259,21 @@ def build_reference(
     n = int(pts.shape[0]) if pts.ndim == 2 and pts.shape[1:] == (2,) else 0
     if n < 5 or not np.isfinite(pts).all():
         return None
-    x, y = pts[:, 0], pts[:, 1]
-    zero = np.zeros(1)
-    cx = np.concatenate((zero, np.cumsum(x)))
-    cy = np.concatenate((zero, np.cumsum(y)))
-    cxx = np.concatenate((zero, np.cumsum(x * x)))
-    cxy = np.concatenate((zero, np.cumsum(x * y)))
-    cyy = np.concatenate((zero, np.cumsum(y * y)))
-    gaps = np.hypot(np.diff(x), np.diff(y))
-    cbig: FloatArray = np.concatenate((zero, np.cumsum(gaps > max_gap_m, dtype=np.float64)))
-
+    sums = _PrefixSums.of(pts, max_gap_m)
     chosen = np.zeros(n, dtype=bool)
     center = np.empty((n, 2))
     normal = np.empty((n, 2))
-    max_var = max_line_rms_m * max_line_rms_m
     for w in half_windows:
-        m = 2 * w + 1
-        if m > n:
+        if 2 * w + 1 > n:
             break
-        lo = np.arange(0, n - 2 * w)  # window [lo, lo + m)
-        hi = lo + m
-        mid = lo + w
-        mx = (cx[hi] - cx[lo]) / m
-        my = (cy[hi] - cy[lo]) / m
-        sxx = (cxx[hi] - cxx[lo]) / m - mx * mx
-        sxy = (cxy[hi] - cxy[lo]) / m - mx * my
-        syy = (cyy[hi] - cyy[lo]) / m - my * my
-        half_tr = 0.5 * (sxx + syy)
-        disc = np.sqrt(np.maximum(0.25 * (sxx - syy) ** 2 + sxy * sxy, 0.0))
-        lam_min = half_tr - disc
-        chord = np.hypot(x[hi - 1] - x[lo], y[hi - 1] - y[lo])
-        no_jump = (cbig[hi - 1] - cbig[lo]) == 0
-        # The widest window needs no minimum chord: better a short line than none.
-        long_enough = chord >= min_line_length_m if w != half_windows[-1] else True
-        ok = long_enough & no_jump & (lam_min <= max_var) & ~chosen[mid]
-        # Direction of the largest principal axis; the normal is perpendicular to it.
-        phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
-        # The window's own centre point must lie on the line too (not so at a corner).
-        off = np.abs(np.cos(phi) * (y[mid] - my) - np.sin(phi) * (x[mid] - mx))
-        ok &= off <= max_line_rms_m
+        min_chord_m = min_line_length_m if w != half_windows[-1] else None
+        lines = _window_lines(sums, w, min_chord_m, max_line_rms_m)
+        ok = lines.ok & ~chosen[lines.mid]
         if ok.any():
-            sel = mid[ok]
-            phi = phi[ok]
-            center[sel, 0] = mx[ok]
-            center[sel, 1] = my[ok]
+            sel = lines.mid[ok]
+            phi = lines.phi[ok]
+            center[sel, 0] = lines.mx[ok]
+            center[sel, 1] = lines.my[ok]
             normal[sel, 0] = -np.sin(phi)
             normal[sel, 1] = np.cos(phi)
             chosen[sel] = True

@@ -2,8 +2,8 @@
 
 As ROS laser_scan_matcher does with CSM, each scan is matched against a *keyframe* (an
 earlier scan) rather than against the previous scan, and a new keyframe is taken only after
-the motion since the current one exceeds ``keyframe_distance_m`` or ``keyframe_angle_rad``
-(0.10 m / 10 degrees, laser_scan_matcher's ``kf_dist_linear`` / ``kf_dist_angular``). At
+the motion since the current one exceeds ``scanmatch.keyframe_distance_m`` or
+``keyframe_angle_rad`` (laser_scan_matcher's ``kf_dist_linear`` / ``kf_dist_angular``). At
 hover the vehicle stays near one keyframe for many scans, so the pose error does not grow
 with the number of scans (scan-to-scan matching integrates one registration error per
 scan), and the keyframe's line model and KD-tree are built once for all those scans.
@@ -20,9 +20,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from mkflight.config import ScanmatchConfig
 from mkflight.scanmatch.geometry import (
     IDENTITY,
     LINE_HALF_WINDOWS,
+    MAX_LINE_GAP_M,
+    MAX_LINE_RMS_M,
+    MIN_LINE_LENGTH_M,
     FloatArray,
     Pose,
     ReferenceScan,
@@ -31,11 +35,8 @@ from mkflight.scanmatch.geometry import (
     compose,
     is_finite_pose,
 )
-from mkflight.scanmatch.icp import IcpParams, MatchResult, invalid_result, match
+from mkflight.scanmatch.icp import MatchResult, invalid_result, match
 
-#: laser_scan_matcher's defaults for a new keyframe.
-KEYFRAME_DISTANCE_M = 0.10
-KEYFRAME_ANGLE_RAD = math.radians(10.0)
 #: Keyframe distance multiplier while the match is degenerate (see :meth:`update`).
 DEGENERATE_DISTANCE_FACTOR = 3.0
 #: Longest gap between scans over which the constant-velocity prediction is extrapolated.
@@ -62,33 +63,29 @@ class KeyframeMatcher:
     """Track a sensor's pose over a sequence of scans by PL-ICP against keyframes.
 
     Args:
-        params: ICP tuning (:class:`~mkflight.scanmatch.icp.IcpParams` defaults when None).
+        config: the ``scanmatch`` config section: the ICP tuning and the keyframe policy
+            (``keyframe_distance_m``, ``keyframe_angle_rad``); its defaults when None.
         start_pose: world pose of the first scan [(0, 0, 0)].
-        keyframe_distance_m: translation from the keyframe that triggers a new one [0.10].
-        keyframe_angle_rad: rotation from the keyframe that triggers a new one [10 deg].
-        min_line_length_m: shortest chord of a reference line fit [0.12, for the URG's
-            dense 0.35-degree beams with 1 cm noise; 0 suits sparse 0.5-1 degree SICK
-            scans] (see :func:`~mkflight.scanmatch.geometry.build_reference`).
-        max_gap_m: jump-edge gap inside a reference line window [0.5].
-        max_line_rms_m: largest RMS residual of a reference line fit [0.03].
-        half_windows: window half-widths tried for line fits [(1, 2, 4, 8, 16)].
+        min_line_length_m: shortest chord of a reference line fit (0 suits sparse
+            0.5-1 degree SICK scans; see :func:`~mkflight.scanmatch.geometry.build_reference`).
+        max_gap_m: jump-edge gap inside a reference line window.
+        max_line_rms_m: largest RMS residual of a reference line fit.
+        half_windows: window half-widths tried for line fits.
     """
 
     def __init__(
         self,
-        params: IcpParams | None = None,
+        config: ScanmatchConfig | None = None,
         *,
         start_pose: Pose = IDENTITY,
-        keyframe_distance_m: float = KEYFRAME_DISTANCE_M,
-        keyframe_angle_rad: float = KEYFRAME_ANGLE_RAD,
-        min_line_length_m: float = 0.12,
-        max_gap_m: float = 0.5,
-        max_line_rms_m: float = 0.03,
+        min_line_length_m: float = MIN_LINE_LENGTH_M,
+        max_gap_m: float = MAX_LINE_GAP_M,
+        max_line_rms_m: float = MAX_LINE_RMS_M,
         half_windows: tuple[int, ...] = LINE_HALF_WINDOWS,
     ) -> None:
-        self.params = params if params is not None else IcpParams()
-        self.keyframe_distance_m = keyframe_distance_m
-        self.keyframe_angle_rad = keyframe_angle_rad
+        self.config = config if config is not None else ScanmatchConfig()
+        self.keyframe_distance_m = self.config.keyframe_distance_m
+        self.keyframe_angle_rad = self.config.keyframe_angle_rad
         self._line_args = (min_line_length_m, max_gap_m, max_line_rms_m)
         self._half_windows = half_windows
         self._pose: Pose = start_pose if is_finite_pose(start_pose) else IDENTITY
@@ -161,7 +158,7 @@ class KeyframeMatcher:
             return TrackUpdate(pose, first, new_keyframe=True)
 
         guess = between(self._kf_pose, predicted)
-        result = match(self._kf, points_xy, guess, self.params)
+        result = match(self._kf, points_xy, guess, self.config)
         pose = compose(self._kf_pose, result.pose) if result.valid else predicted
         rel = result.pose
         # In a degenerate scene the motion along the unobservable axis is the prior's:

@@ -56,7 +56,8 @@ from typing import Final
 
 import numpy as np
 
-from mkflight.config import SimConfig
+from mkflight.config import SimConfig, SimVehicleConfig
+from mkflight.conversions import MIN_PER_H
 from mkflight.sim.battery import LIPO_OCV_V
 from mkflight.sim.vehicle import VehicleParams
 
@@ -102,7 +103,7 @@ airframes an oracle's std peaks near 0.15-0.3 s (0.0076-0.0078 m median), so 0.3
 hardest case for a position loop (1 s: 0.0059 m)."""
 ACC_SCALE_ERROR_XY: Final = 0.02
 ACC_SCALE_ERROR_Z: Final = 0.03
-NOMINAL_VEHICLE: Final = VehicleParams()
+NOMINAL_VEHICLE: Final = VehicleParams.from_config(SimVehicleConfig())
 SAG_MINUTES: Final = 15.0
 
 
@@ -115,37 +116,7 @@ def airframe_from_config(sim: SimConfig) -> VehicleParams:
 
 def nominal_airframe(sim: SimConfig) -> VehicleParams:
     """SPEC §8's airframe with the constants of ``sim.vehicle``."""
-    v = sim.vehicle
-    return replace(
-        NOMINAL_VEHICLE,
-        mass_kg=v.mass_kg,
-        hover_gas_counts=v.hover_gas,
-        hover_voltage_v=v.hover_voltage_v,
-        counts_per_rad=v.counts_per_rad,
-        yaw_rate_radps_per_count=v.yaw_rate_radps_per_count,
-        yaw_drift_radps=v.yaw_drift_radps,
-        attitude_delay_s=v.attitude_delay_s,
-        attitude_tau_s=v.attitude_tau_s,
-        thrust_tau_s=v.gas_tau_s,
-        drag_linear_per_s=v.drag_linear_per_s,
-        ground_effect=v.ground_effect,
-        gusts=v.gusts,
-        wind_std_mps=v.wind_std_mps,
-        wind_std_z_mps=v.wind_std_mps / 2.0,
-        wind_tau_s=v.wind_tau_s,
-        gust_accel_std_mps2=v.gust_accel_std_mps2,
-        gust_tau_s=v.gust_tau_s,
-        pitch_trim_std_rad=v.trim_std_rad,
-        acc_bias_std_mps2=v.acc_bias_std_mps2,
-        vibration_std_mps2=v.vibration_std_mps2,
-        vibration_z_ratio=v.vibration_z_ratio,
-        battery_capacity_ah=v.battery_capacity_ah,
-        battery_used_ah=v.battery_used_ah,
-        laser_extra_delay_s=v.laser_extra_delay_s,
-        laser_jitter_s=v.laser_jitter_s,
-        debug_jitter_ticks=v.debug_jitter_ticks,
-        debug_late_fraction=v.debug_late_fraction,
-    )
+    return VehicleParams.from_config(sim.vehicle)
 
 
 def battery_for(start_v: float, sag_v: float, params: VehicleParams) -> tuple[float, float]:
@@ -158,7 +129,7 @@ def battery_for(start_v: float, sag_v: float, params: VehicleParams) -> tuple[fl
     """
     soc0 = _soc_of(start_v / params.battery_cells)
     soc1 = _soc_of((start_v - sag_v) / params.battery_cells)
-    drawn_ah = (params.hover_current_a + params.avionics_current_a) * SAG_MINUTES / 60.0
+    drawn_ah = (params.hover_current_a + params.avionics_current_a) * SAG_MINUTES / MIN_PER_H
     capacity = drawn_ah / max(soc0 - soc1, 1e-3)
     return capacity, capacity * (1.0 - soc0)
 

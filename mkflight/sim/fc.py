@@ -34,6 +34,7 @@ from dataclasses import replace
 from typing import Final, Protocol
 
 from mkflight.config import SimFcConfig
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import ProtocolError
 from mkflight.mk.codec import ADDR_FC, Frame, encode_frame
 from mkflight.mk.messages import (
@@ -54,7 +55,7 @@ from mkflight.sim.fc_uart import FcReceiver, FcTransmitter, HostLine, UartCounte
 DELAY_OVERSHOOT_TICKS: Final = 2  # an FC delay of t ticks expires after t+1 or t+2 (§7.1)
 SUBSCRIPTION_TICKS: Final = 4000  # 'd' expires 4000 ticks after the last renewal (§7.2)
 MK3MAG_PERIOD_TICKS: Final = 99  # the unsolicited '#dk' frame (§7.6)
-DEFAULT_BOOT_NS: Final = 1_000_000_000  # how long a rebooting FC stays deaf and mute
+DEFAULT_BOOT_NS: Final = NS_PER_S  # how long a rebooting FC stays deaf and mute
 
 # Frames that reload the hold counter. A real FC also reloads on 't' (motor test), but
 # the emulator never acts on 't' (§4: a client must not send it).

@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from mkflight.config import SimFcConfig
+from mkflight.conversions import NS_PER_S
 from mkflight.sim.fc import DEFAULT_BOOT_NS, AnalogSource, FcModel
 from mkflight.sim.pty_server import PtyEmulator
 
@@ -65,10 +66,10 @@ class FcEmulator(PtyEmulator[FcModel]):
 
     def silence_for(self, duration_s: float) -> None:
         """Lose every frame the FC starts in the next ``duration_s`` (a dead TX line)."""
-        self.model.silence(time.monotonic_ns() + round(duration_s * 1e9))
+        self.model.silence(time.monotonic_ns() + round(duration_s * NS_PER_S))
         self._poke()
 
-    def reboot(self, boot_s: float = DEFAULT_BOOT_NS / 1e9) -> None:
+    def reboot(self, boot_s: float = DEFAULT_BOOT_NS / NS_PER_S) -> None:
         """Reboot the FC now; it is deaf and mute for ``boot_s``."""
-        self.model.reboot(time.monotonic_ns(), boot_ns=round(boot_s * 1e9))
+        self.model.reboot(time.monotonic_ns(), boot_ns=round(boot_s * NS_PER_S))
         self._poke()

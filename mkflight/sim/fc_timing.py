@@ -22,6 +22,8 @@ from typing import Final
 
 import numpy as np
 
+from mkflight.conversions import NS_PER_S
+
 TICK_NS: Final = 1_024_000  # one FC tick, 20 MHz / 8 / 256 / 10 (mk-serial.md §7.1)
 LATE_MIN_S: Final = 0.005  # a late DebugOut leaves this much ...
 LATE_MAX_S: Final = 0.025  # ... to this much later than due (uniform)
@@ -60,7 +62,7 @@ class DebugJitter:
         extra = int(self._rng.integers(0, t.jitter_ticks + 1)) if t.jitter_ticks > 0 else 0
         if t.late_fraction > 0.0 and self._rng.random() < t.late_fraction:
             self.late_frames += 1
-            late_ns = self._rng.uniform(LATE_MIN_S, LATE_MAX_S) * 1e9
+            late_ns = self._rng.uniform(LATE_MIN_S, LATE_MAX_S) * NS_PER_S
             extra += round(late_ns / TICK_NS)
         return extra
 

@@ -23,21 +23,21 @@ from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Final
 
+from mkflight.conversions import NS_PER_S
 from mkflight.mk.codec import END, MAX_FRAME_BYTES, MIN_FRAME_BYTES, OFFSET, START, Frame, checksum
 
 BAUD: Final = 57600  # §1
 BITS_PER_BYTE: Final = 10  # start + 8 data + stop
-_NS_PER_S: Final = 1_000_000_000
 
 
 def wire_ns(n_bytes: int) -> int:
     """Time ``n_bytes`` take on the wire, rounded up to the nanosecond (§1)."""
-    return -(-n_bytes * BITS_PER_BYTE * _NS_PER_S // BAUD)
+    return -(-n_bytes * BITS_PER_BYTE * NS_PER_S // BAUD)
 
 
 def bytes_sent(elapsed_ns: int) -> int:
     """How many whole bytes leave the UART in ``elapsed_ns``."""
-    return max(0, elapsed_ns) * BAUD // (BITS_PER_BYTE * _NS_PER_S)
+    return max(0, elapsed_ns) * BAUD // (BITS_PER_BYTE * NS_PER_S)
 
 
 @dataclass(frozen=True, slots=True)

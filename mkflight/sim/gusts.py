@@ -34,12 +34,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Final
+from typing import Final, Protocol
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from mkflight.sim.vehicle_types import VehicleParams
 
 GRID_S: Final = 0.01  # the OU series' sampling step (exact OU transitions between points)
 CHUNK_POINTS: Final = 1024  # grid intervals per chunk (10.24 s)
@@ -51,6 +48,49 @@ Chunk = tuple[list[float], list[float], list[float], list[float], list[float], l
 Unit6 = tuple[float, float, float, float, float, float]
 Vec3 = tuple[float, float, float]
 _ZERO: Final[Vec3] = (0.0, 0.0, 0.0)
+
+
+class GustParams(Protocol):
+    """The airframe constants the gusts read (:class:`~mkflight.sim.vehicle.VehicleParams`).
+
+    A protocol, so that this module needs nothing of the vehicle's records, which hold a
+    :class:`GustSeries` themselves.
+    """
+
+    @property
+    def gusts(self) -> bool:
+        """Gusts on (False: still air)."""
+        ...
+
+    @property
+    def wind_std_mps(self) -> float:
+        """Standard deviation of the horizontal wind velocity, m/s."""
+        ...
+
+    @property
+    def wind_std_z_mps(self) -> float:
+        """Standard deviation of the vertical wind velocity, m/s."""
+        ...
+
+    @property
+    def wind_tau_s(self) -> float:
+        """Correlation time of the wind, s."""
+        ...
+
+    @property
+    def gust_accel_std_mps2(self) -> float:
+        """Standard deviation of the horizontal disturbance acceleration, m/s^2."""
+        ...
+
+    @property
+    def gust_accel_z_ratio(self) -> float:
+        """The vertical disturbance acceleration's standard deviation over the horizontal's."""
+        ...
+
+    @property
+    def gust_tau_s(self) -> float:
+        """Correlation time of the disturbance acceleration, s."""
+        ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -146,14 +186,14 @@ class GustSeries:
         return (out[0], out[1], out[2], out[3], out[4], out[5])
 
 
-def gust_series(params: VehicleParams, gust_seed: int) -> GustSeries | None:
+def gust_series(params: GustParams, gust_seed: int) -> GustSeries | None:
     """The flight's gust series (``None`` in still air, ``params.gusts`` off)."""
     if not params.gusts:
         return None
     return GustSeries(gust_seed, params.wind_tau_s, params.gust_tau_s)
 
 
-def gusts_at(series: GustSeries | None, params: VehicleParams, t_s: float) -> tuple[Vec3, Vec3]:
+def gusts_at(series: GustSeries | None, params: GustParams, t_s: float) -> tuple[Vec3, Vec3]:
     """``(wind_w_mps, gust_w_mps2)`` at ``t_s``: the series scaled by ``params``' stds."""
     if series is None or not params.gusts:
         return _ZERO, _ZERO

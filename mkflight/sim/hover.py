@@ -40,10 +40,10 @@ from typing import Final
 
 import numpy as np
 
-from mkflight.clock import NS_PER_S
 from mkflight.config import Config
 from mkflight.control.controller import Setpoint
 from mkflight.control.phases import Phase, PhaseRequests
+from mkflight.conversions import NS_PER_S, US_PER_S
 from mkflight.flight.step import PilotSticks
 from mkflight.logs.flight_json import with_summary, write_flight_json
 from mkflight.mk.messages import DebugOut
@@ -70,7 +70,7 @@ from mkflight.sim.lockstep import (
 )
 from mkflight.sim.truth import TruthLog
 from mkflight.sim.vehicle import Sticks, VehicleState
-from mkflight.urg.driver import settings_from_config
+from mkflight.urg.driver import streamed_steps
 
 SETTLE_S: Final = 3.0  # precision counts from this long after HOLD begins
 LAND_MARGIN_S: Final = 5.0  # time allowed after the duration to land
@@ -214,7 +214,7 @@ def run_hover(
     faults = HoverFaults() if faults is None else faults
     log_dir.mkdir(parents=True, exist_ok=True)
     flight = FlightSide(cfg, log_dir, height_m=height_m, scans=scans)
-    steps_asked = settings_from_config(cfg.laser)  # the driver's MD request (flight side)
+    steps_asked = streamed_steps(cfg.laser)  # the driver's MD request (flight side)
     params = airframe_from_config(cfg.sim)
     airframe = {"kind": cfg.sim.airframe, "seed": cfg.sim.seed, **describe(params)}
     try:
@@ -226,7 +226,7 @@ def run_hover(
         cfg.sim,
         seed=seed,
         scans=scans,
-        scan_steps=(steps_asked.first_step, steps_asked.last_step),
+        scan_steps=steps_asked,
         truth=truth,
         params=params,
     )
@@ -291,7 +291,7 @@ def _result(
         hold_s=tally.hold_ns / NS_PER_S,
         end=end,
         failsafes=list(core.counters.failsafe_events),
-        cpu_us_per_step=(time.process_time() - cpu0) / max(tally.steps, 1) * 1e6,
+        cpu_us_per_step=(time.process_time() - cpu0) / max(tally.steps, 1) * US_PER_S,
         max_height_m=vehicle.max_height_m,
         final_height_m=vehicle.state.height_m,
         released=not core.last_command.take_control,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mkflight.clock import NS_PER_S
+from mkflight.conversions import NS_PER_S
 
 
 class Excitation:

@@ -24,8 +24,8 @@ from typing import Final
 
 import numpy as np
 
-from mkflight.clock import NS_PER_S
 from mkflight.config import Config
+from mkflight.conversions import MM_PER_M, NS_PER_S
 from mkflight.flight.laser_pipeline import LaserPipeline
 from mkflight.flight.step import FlightCore, ImuStepOutput
 from mkflight.logs.events import EventsWriter
@@ -65,7 +65,7 @@ def scan_from_raw(raw: RawScan) -> Scan:
     p = URG_04LX
     values = raw.values_mm.astype(np.float64)
     ok = (values >= p.dmin_mm) & (values <= p.dmax_mm)
-    ranges = np.where(ok, values / 1000.0, np.nan)
+    ranges = np.where(ok, values / MM_PER_M, np.nan)
     return Scan(t_ns=raw.stamp_ns, ranges_m=ranges, first_step=raw.first_step, seq=raw.seq)
 
 

@@ -14,6 +14,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Final
 
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import ConfigError
 from mkflight.sim.fc import DEFAULT_BOOT_NS
 
@@ -38,7 +39,7 @@ FAULT_KINDS: Final[dict[str, FaultKind]] = {
     "fc-vanish": FaultKind(),  # the FC's USB adapter is pulled
     "fc-replug": FaultKind(),  # ... and plugged back in
     "fc-silent": FaultKind("DUR_S"),  # the FC's TX line is dead for DUR_S
-    "fc-reboot": FaultKind("BOOT_S", required=False, default=DEFAULT_BOOT_NS / 1e9),
+    "fc-reboot": FaultKind("BOOT_S", required=False, default=DEFAULT_BOOT_NS / NS_PER_S),
     "fc-garbage": FaultKind("NBYTES", integer=True),  # random bytes before the next frame
     "fc-corrupt": FaultKind("NFRAMES", integer=True),  # the next frames with a bad CRC
     "laser-vanish": FaultKind(),

@@ -46,8 +46,8 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from mkflight.clock import NS_PER_S
 from mkflight.config import SimConfig
+from mkflight.conversions import NS_PER_S
 from mkflight.mk.messages import ANALOG_GAS, ANALOG_RECEIVER_LEVEL
 from mkflight.msgs import Pose2D
 from mkflight.sim.airframe import airframe_from_config

@@ -31,6 +31,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Generic, Protocol, Self, TypeVar
 
+from mkflight.conversions import NS_PER_MS, NS_PER_S
 from mkflight.errors import LinkError
 from mkflight.io.pty import PtyDevice
 
@@ -207,7 +208,7 @@ class PtyEmulator(abc.ABC, Generic[M]):
             if next_ns is None:
                 await self._wake.wait()
                 continue
-            delay_s = (next_ns - time.monotonic_ns()) / 1e9
+            delay_s = (next_ns - time.monotonic_ns()) / NS_PER_S
             if delay_s > 0:
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(delay_s):
@@ -225,7 +226,7 @@ class PtyEmulator(abc.ABC, Generic[M]):
             return
         self.late_count += 1
         if len(self.late_wakes) < LATE_KEEP:
-            self.late_wakes.append((now_ns, (now_ns - due_ns) / 1e6))
+            self.late_wakes.append((now_ns, (now_ns - due_ns) / NS_PER_MS))
 
     def _poke(self) -> None:
         """Make the sender re-plan now (the model's next event may have moved)."""

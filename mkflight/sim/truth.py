@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Final
 
-from mkflight.clock import NS_PER_S
+from mkflight.conversions import NS_PER_S
 from mkflight.logs._file import LineFile
 from mkflight.sim.vehicle import VehicleState
 

@@ -41,6 +41,7 @@ from typing import Final, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from mkflight.conversions import NS_PER_MS
 from mkflight.sim.urg_answers import (
     DEAD_ZONE_CODE,
     ScanRequest,
@@ -58,7 +59,6 @@ from mkflight.sim.urg_answers import (
 )
 from mkflight.urg.codec import LF, TIMESTAMP_MODULUS_MS, timestamp_line
 
-NS_PER_MS: Final = 1_000_000
 MAX_COMMAND_BYTES: Final = 64  # a longer line without terminator is discarded
 SCIP1_REFUSAL: Final = b"E"  # a SCIP 1.1 sensor's answer to a SCIP 2.0 command (assumed)
 _SIMPLE: Final = frozenset((b"VV", b"PP", b"II", b"BM", b"QT", b"RS"))

@@ -41,6 +41,8 @@ from typing import Final, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from mkflight.config import SimVehicleConfig
+from mkflight.conversions import MM_PER_M
 from mkflight.sim.vehicle import VehicleParams
 from mkflight.urg.units import URG_04LX, SensorParams
 
@@ -101,7 +103,7 @@ class HatGeometry:
         return cls(params.hat_steps, params.mirror_edge_last_step, params.hat_offset_m)
 
 
-NOMINAL_HAT: Final = HatGeometry.of(VehicleParams())
+NOMINAL_HAT: Final = HatGeometry.of(VehicleParams.from_config(SimVehicleConfig()))
 
 
 class FixedRanges:
@@ -185,7 +187,7 @@ class RoomScene:
     def _to_mm(self, ranges_m: FloatArray) -> IntArray:
         """Add noise, round to mm; no hit, beyond DMAX or below DMIN -> 0."""
         noisy = ranges_m + self.rng.normal(0.0, self.noise_m, ranges_m.shape)
-        mm = np.rint(np.nan_to_num(noisy, nan=0.0) * 1000.0).astype(np.int64)
+        mm = np.rint(np.nan_to_num(noisy, nan=0.0) * MM_PER_M).astype(np.int64)
         bad = ~np.isfinite(noisy) | (mm > self.params.dmax_mm) | (mm < self.params.dmin_mm)
         return np.where(bad, 0, mm)
 
@@ -223,7 +225,7 @@ class RoomScene:
         lz = -sp * cb + cp * sb * sr
         horizontal = np.hypot(lx, ly)
         azimuth = np.arctan2(ly, lx)  # clockwise from the nose, like yaw
-        max_m = self.params.dmax_mm / 1000.0
+        max_m = self.params.dmax_mm / MM_PER_M
         flat = self.caster(pose.x_m, -pose.y_m, -pose.yaw_rad, -azimuth, max_m)
         with np.errstate(divide="ignore", invalid="ignore"):
             wall = np.asarray(flat, dtype=np.float64) / horizontal

@@ -32,6 +32,7 @@ import time
 from pathlib import Path
 from typing import Final
 
+from mkflight.conversions import NS_PER_S
 from mkflight.sim.pty_server import PtyEmulator
 from mkflight.sim.urg import RangeSource, UrgModel
 from mkflight.sim.urg_answers import UrgIdentity
@@ -85,8 +86,8 @@ class UrgEmulator(PtyEmulator[UrgModel]):
             timer_ms=self._timer_ms,
             scip1=self._scip1,
             identity=self._identity,
-            delivery_delay_ns=round(self._usb_delay_s * 1e9),
-            delivery_jitter_ns=round(self._usb_jitter_s * 1e9),
+            delivery_delay_ns=round(self._usb_delay_s * NS_PER_S),
+            delivery_jitter_ns=round(self._usb_jitter_s * NS_PER_S),
             seed=self._seed,
         )
 
@@ -100,7 +101,7 @@ class UrgEmulator(PtyEmulator[UrgModel]):
     def usb_delay_s(self, value: float) -> None:
         self._usb_delay_s = value
         if self._model is not None:
-            self._model.delivery_delay_ns = round(value * 1e9)
+            self._model.delivery_delay_ns = round(value * NS_PER_S)
             self._poke()
 
     def replug(self, *, power_cycle: bool = True) -> None:
@@ -126,5 +127,5 @@ class UrgEmulator(PtyEmulator[UrgModel]):
 
     def stall_for(self, duration_s: float) -> None:
         """Send no scan for ``duration_s`` while still answering commands."""
-        self.model.stall(time.monotonic_ns() + round(duration_s * 1e9))
+        self.model.stall(time.monotonic_ns() + round(duration_s * NS_PER_S))
         self._poke()

@@ -25,6 +25,7 @@ import functools
 import math
 from typing import Final, NamedTuple
 
+from mkflight.conversions import S_PER_H
 from mkflight.sim.battery import open_circuit_segment
 from mkflight.sim.gusts import CHUNK_POINTS, GRID_S, GustSeries, Unit6
 from mkflight.sim.landing_gear import GEAR_LEVEL_TAU_S, Transition, crossing_time, transition
@@ -375,7 +376,7 @@ def battery_step(
     amps = pack.avionics_current_a + pack.hover_current_a * ratio * math.sqrt(
         ratio
     ) * hover_v / max(battery_v, 0.1 * hover_v)
-    used_ah += amps * h_s / 3600.0
+    used_ah += amps * h_s / S_PER_H
     if used_ah > segment[2]:  # the next line of the LiPo curve
         segment = segment_at(used_ah, pack.params)
     ocv, slope, _, from_ah = segment

@@ -2,87 +2,149 @@
 
 :class:`VehicleParams` (the airframe's true constants), :class:`Sticks` (what the FC
 flies), :class:`FlightErrors` and :class:`VehicleState`. Their own module so the physics
-(:mod:`mkflight.sim.vehicle`, which re-exports them), the sensors, the gusts and the
-battery share them without import cycles.
+(:mod:`mkflight.sim.vehicle`, which re-exports them), the sensors and the battery share
+them without import cycles (the gusts read the airframe through
+:class:`~mkflight.sim.gusts.GustParams`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from mkflight.config import SimVehicleConfig
 from mkflight.sim.gusts import GustSeries
 
 
 @dataclass(frozen=True, slots=True)
 class VehicleParams:
-    """The simulated airframe's TRUE constants (SPEC §8; defaults: the nominal airframe).
+    """The simulated airframe's TRUE constants (SPEC §8), SI, as the physics reads them.
 
-    The simulator's own: built from the ``sim`` config section by
-    :func:`mkflight.sim.airframe.airframe_from_config` (nominal, or drawn from the
-    envelope), never from ``mk``, ``control`` or the flight code's calibration. The MK's
-    conventions (signs, units) are the FC's facts and are written here independently of
-    the flight code's copy.
+    The simulator's own: :meth:`from_config` takes them from the ``sim.vehicle`` config
+    section (the nominal airframe), :func:`mkflight.sim.airframe.draw_airframe` draws an
+    airframe from the envelope; never from ``mk``, ``control`` or the flight code's
+    calibration. No defaults: every value has its one home in
+    :class:`~mkflight.config.SimVehicleConfig`, documented there. Three fields carry their
+    unit in the name where the config key does not (``hover_gas_counts`` is
+    ``hover_gas``, ``thrust_tau_s`` is ``gas_tau_s``, ``pitch_trim_std_rad`` is
+    ``trim_std_rad``); ``wind_std_z_mps`` is derived (half the horizontal wind).
     """
 
-    mass_kg: float = 1.04  # seed §L: 1,040 g all up
-    g_mps2: float = 9.81
-    counts_per_rad: float = 120.0  # the FC's attitude loop: stick counts per radian
-    nick_sign: int = -1  # the MK: our angle = sign * counts / counts_per_rad (+ nick: nose down)
-    roll_sign: int = -1
-    yaw_sign: int = -1
-    max_tilt_rad: float = 1.0  # the FC's attitude loop never commands more
-    attitude_delay_s: float = 0.1  # seed §F
-    attitude_tau_s: float = 0.1  # seed §F
-    yaw_rate_radps_per_count: float = 0.02  # 40 counts -> 0.8 rad/s
-    yaw_drift_radps: float = 0.0  # yaw rate with the yaw stick at neutral (clockwise +)
-    hover_gas_counts: float = 104.0  # the gas that holds the weight at hover_voltage_v
-    hover_voltage_v: float = 11.8
-    gas_max_counts: float = 255.0  # the FC's gas is an unsigned char
-    thrust_tau_s: float = 0.05  # motor + ESC spin-up
-    ground_effect: float = 0.0  # extra thrust fraction on the ground (0.15 = +15 %)
-    ground_effect_height_m: float = 0.1  # rotor height above the floor when landed
-    # The landing gear (mkflight.sim.landing_gear): spring-damper + friction on the floor.
-    gear_sag_m: float = 0.008  # static compression with the motors off (sets the stiffness)
-    gear_compression_zeta: float = 0.3  # damping ratio while compressing: a ~40 ms stop
-    gear_rebound_zeta: float = 6.0  # ... while extending: no bounce
-    gear_friction: float = 0.6  # Coulomb friction coefficient on the floor
-    battery_cells: int = 3  # seed §M: 3 cells, 2200 mAh
-    battery_capacity_ah: float = 2.2
-    battery_used_ah: float = 0.0  # already drawn at take-off
-    battery_resistance_ohm: float = 0.05  # pack + wiring
-    hover_current_a: float = 6.8  # seed §L: 4 x 1.7 A
-    avionics_current_a: float = 0.5  # seed §L: Gumstix, laser, hub
-    drag_linear_per_s: float = 0.3  # k1
-    drag_quadratic_per_m: float = 0.1  # k2
-    wind_std_mps: float = 0.1  # OU gust velocity, horizontal, felt through the drag
-    wind_std_z_mps: float = 0.05  # OU gust velocity, vertical
-    wind_tau_s: float = 2.0
-    gusts: bool = True
-    gust_accel_std_mps2: float = 0.0  # OU disturbance acceleration, horizontal (turbulence)
-    gust_accel_z_ratio: float = 0.4  # ... vertical, as a fraction of that
-    gust_tau_s: float = 1.0
-    pitch_trim_std_rad: float = 0.005  # per flight, seeded (normal)
-    trim_rad: tuple[float, float] = (0.0, 0.0)  # fixed angle bias (pitch, roll) of this FC
-    acc_bias_std_mps2: float = 0.05  # per flight and axis, seeded (normal)
-    acc_bias_mps2: tuple[float, float, float] = (0.0, 0.0, 0.0)  # fixed bias of this FC
-    vibration_std_mps2: float = 0.2  # left in the FC-averaged x/y accelerations at hover
-    vibration_z_ratio: float = 1.0  # AccZ vibration as a fraction of the x/y one
-    angle_noise_std_rad: float = 0.002
-    battery_noise_std_v: float = 0.02
-    # The FC's accelerometer as it really is (the MK's units, mk-serial.md §6; SPEC §1).
-    acc_nick_counts_per_g: float = 606.3
-    acc_roll_counts_per_g: float = 603.44
-    acc_z_counts_per_mps2: float = 15.5
-    acc_z_offset_mps2: float = 9.8
-    # Timing of the links (the emulators and the lock-step simulation).
-    laser_extra_delay_s: float = 0.0  # scans older than the driver's transport_delay_s says
-    laser_jitter_s: float = 0.0  # USB jitter per URG reply, uniform 0..this
-    debug_jitter_ticks: int = 0  # DebugOut leaves up to this many FC ticks late
-    debug_late_fraction: float = 0.0  # this share of DebugOuts 5-25 ms late
-    # The laser hat as built on this airframe (the sim's own, not the flight's laser.*).
-    hat_steps: tuple[int, int] = (44, 127)  # URG steps the mirror folds down to the floor
-    mirror_edge_last_step: int = 149  # steps after the hat up to this see the mirror's edge
-    hat_offset_m: float = 0.05  # the hat's range on the floor minus the height (standing: 0)
+    mass_kg: float
+    g_mps2: float
+    counts_per_rad: float
+    nick_sign: int
+    roll_sign: int
+    yaw_sign: int
+    max_tilt_rad: float
+    attitude_delay_s: float
+    attitude_tau_s: float
+    yaw_rate_radps_per_count: float
+    yaw_drift_radps: float
+    hover_gas_counts: float
+    hover_voltage_v: float
+    gas_max_counts: float
+    thrust_tau_s: float
+    ground_effect: float
+    ground_effect_height_m: float
+    gear_sag_m: float
+    gear_compression_zeta: float
+    gear_rebound_zeta: float
+    gear_friction: float
+    battery_cells: int
+    battery_capacity_ah: float
+    battery_used_ah: float
+    battery_resistance_ohm: float
+    hover_current_a: float
+    avionics_current_a: float
+    drag_linear_per_s: float
+    drag_quadratic_per_m: float
+    wind_std_mps: float
+    wind_std_z_mps: float
+    wind_tau_s: float
+    gusts: bool
+    gust_accel_std_mps2: float
+    gust_accel_z_ratio: float
+    gust_tau_s: float
+    pitch_trim_std_rad: float
+    trim_rad: tuple[float, float]
+    acc_bias_std_mps2: float
+    acc_bias_mps2: tuple[float, float, float]
+    vibration_std_mps2: float
+    vibration_z_ratio: float
+    angle_noise_std_rad: float
+    battery_noise_std_v: float
+    acc_nick_counts_per_g: float
+    acc_roll_counts_per_g: float
+    acc_z_counts_per_mps2: float
+    acc_z_offset_mps2: float
+    laser_extra_delay_s: float
+    laser_jitter_s: float
+    debug_jitter_ticks: int
+    debug_late_fraction: float
+    hat_steps: tuple[int, int]
+    mirror_edge_last_step: int
+    hat_offset_m: float
+
+    @classmethod
+    def from_config(cls, vehicle: SimVehicleConfig) -> VehicleParams:
+        """The airframe the ``sim.vehicle`` section describes (the nominal one)."""
+        return cls(
+            mass_kg=vehicle.mass_kg,
+            g_mps2=vehicle.g_mps2,
+            counts_per_rad=vehicle.counts_per_rad,
+            nick_sign=vehicle.nick_sign,
+            roll_sign=vehicle.roll_sign,
+            yaw_sign=vehicle.yaw_sign,
+            max_tilt_rad=vehicle.max_tilt_rad,
+            attitude_delay_s=vehicle.attitude_delay_s,
+            attitude_tau_s=vehicle.attitude_tau_s,
+            yaw_rate_radps_per_count=vehicle.yaw_rate_radps_per_count,
+            yaw_drift_radps=vehicle.yaw_drift_radps,
+            hover_gas_counts=vehicle.hover_gas,
+            hover_voltage_v=vehicle.hover_voltage_v,
+            gas_max_counts=vehicle.gas_max_counts,
+            thrust_tau_s=vehicle.gas_tau_s,
+            ground_effect=vehicle.ground_effect,
+            ground_effect_height_m=vehicle.ground_effect_height_m,
+            gear_sag_m=vehicle.gear_sag_m,
+            gear_compression_zeta=vehicle.gear_compression_zeta,
+            gear_rebound_zeta=vehicle.gear_rebound_zeta,
+            gear_friction=vehicle.gear_friction,
+            battery_cells=vehicle.battery_cells,
+            battery_capacity_ah=vehicle.battery_capacity_ah,
+            battery_used_ah=vehicle.battery_used_ah,
+            battery_resistance_ohm=vehicle.battery_resistance_ohm,
+            hover_current_a=vehicle.hover_current_a,
+            avionics_current_a=vehicle.avionics_current_a,
+            drag_linear_per_s=vehicle.drag_linear_per_s,
+            drag_quadratic_per_m=vehicle.drag_quadratic_per_m,
+            wind_std_mps=vehicle.wind_std_mps,
+            wind_std_z_mps=vehicle.wind_std_mps / 2.0,
+            wind_tau_s=vehicle.wind_tau_s,
+            gusts=vehicle.gusts,
+            gust_accel_std_mps2=vehicle.gust_accel_std_mps2,
+            gust_accel_z_ratio=vehicle.gust_accel_z_ratio,
+            gust_tau_s=vehicle.gust_tau_s,
+            pitch_trim_std_rad=vehicle.trim_std_rad,
+            trim_rad=vehicle.trim_rad,
+            acc_bias_std_mps2=vehicle.acc_bias_std_mps2,
+            acc_bias_mps2=vehicle.acc_bias_mps2,
+            vibration_std_mps2=vehicle.vibration_std_mps2,
+            vibration_z_ratio=vehicle.vibration_z_ratio,
+            angle_noise_std_rad=vehicle.angle_noise_std_rad,
+            battery_noise_std_v=vehicle.battery_noise_std_v,
+            acc_nick_counts_per_g=vehicle.acc_nick_counts_per_g,
+            acc_roll_counts_per_g=vehicle.acc_roll_counts_per_g,
+            acc_z_counts_per_mps2=vehicle.acc_z_counts_per_mps2,
+            acc_z_offset_mps2=vehicle.acc_z_offset_mps2,
+            laser_extra_delay_s=vehicle.laser_extra_delay_s,
+            laser_jitter_s=vehicle.laser_jitter_s,
+            debug_jitter_ticks=vehicle.debug_jitter_ticks,
+            debug_late_fraction=vehicle.debug_late_fraction,
+            hat_steps=vehicle.hat_steps,
+            mirror_edge_last_step=vehicle.mirror_edge_last_step,
+            hat_offset_m=vehicle.hat_offset_m,
+        )
 
 
 @dataclass(frozen=True, slots=True)

@@ -53,8 +53,8 @@ from typing import Final
 import numpy as np
 import structlog
 
-from mkflight.clock import NS_PER_S
 from mkflight.config import Config, SimFcConfig
+from mkflight.conversions import NS_PER_S
 from mkflight.mk.messages import ANALOG_GAS
 from mkflight.sim.airframe import airframe_from_config, describe
 from mkflight.sim.fc import FcModel
@@ -68,7 +68,7 @@ from mkflight.sim.urg_scene import ScenePose
 from mkflight.sim.vehicle import Sticks, VehicleParams, VehicleState, initial_state, step
 from mkflight.sim.vehicle_sensors import battery_reading_v, imu_measured_si
 
-HISTORY_NS: Final = 1_000_000_000  # states kept for requests in the past (scan beams)
+HISTORY_NS: Final = NS_PER_S  # states kept for requests in the past (scan beams)
 MAX_CHUNK_NS: Final = 10_000_000  # one history entry at least every 10 ms of vehicle time
 MIN_STEP_NS: Final = 200_000  # closer requests are answered from the current state
 log = structlog.get_logger("mkflight.sim")

@@ -21,7 +21,8 @@ statuses in a stream re-issue MD and, repeated, fail; a vanished device is a
 :class:`~mkflight.errors.LinkError` naming the port, and :meth:`UrgDriver.reopen` tries
 again with back-off and the whole start-up. :meth:`UrgDriver.close` sends QT.
 
-Settings, start-up information and counters: :mod:`mkflight.urg.driver_types` (re-exported).
+Settings: the ``laser`` config section (:class:`~mkflight.config.LaserConfig`); the streamed
+steps, start-up information and counters: :mod:`mkflight.urg.driver_types` (re-exported).
 """
 
 from __future__ import annotations
@@ -32,17 +33,19 @@ import contextlib
 import structlog
 
 from mkflight.clock import Clock, MonotonicClock
+from mkflight.config import LaserConfig
+from mkflight.conversions import NS_PER_S
 from mkflight.errors import LinkError, ProtocolError
 from mkflight.io.reopen import open_with_backoff
 from mkflight.io.stream import ByteStream, Opener, Tap, resolve_waiter
 from mkflight.msgs import Scan
 from mkflight.urg.codec import md_command, scip2_command, simple_command, tm_command
-from mkflight.urg.driver_types import UrgInfo, UrgSettings, UrgStats, settings_from_config
+from mkflight.urg.driver_types import UrgInfo, UrgStats, streamed_steps
 from mkflight.urg.replies import InfoReply, Reply, ReplyParser, ScanReply
-from mkflight.urg.stamping import NS_PER_S, ScanStamper
+from mkflight.urg.stamping import ScanStamper
 from mkflight.urg.units import URG_04LX, SensorParams, parse_params
 
-__all__ = ["UrgDriver", "UrgInfo", "UrgSettings", "UrgStats", "settings_from_config"]
+__all__ = ["UrgDriver", "UrgInfo", "UrgStats", "streamed_steps"]
 
 log = structlog.get_logger("mkflight.urg")
 
@@ -53,14 +56,15 @@ class UrgDriver:
     def __init__(
         self,
         stream: ByteStream,
-        settings: UrgSettings | None = None,
+        config: LaserConfig | None = None,
         clock: Clock | None = None,
         *,
         reopen: Opener | None = None,
         tap: Tap | None = None,
     ) -> None:
         self._stream = stream
-        self._s = settings or UrgSettings()
+        self._cfg = config if config is not None else LaserConfig()
+        self._first_step, self._last_step = streamed_steps(self._cfg)
         self._clock: Clock = clock or MonotonicClock()
         self._opener = reopen
         self._tap = tap
@@ -70,7 +74,7 @@ class UrgDriver:
         self.stats.parser = self._parser.stats
         self.params: SensorParams = URG_04LX
         self.info: UrgInfo | None = None
-        self._stamper = ScanStamper(self._s.transport_delay_s)
+        self._stamper = ScanStamper(self._cfg.transport_delay_s)
         self._reader: asyncio.Task[None] | None = None
         self._error: LinkError | None = None
         self._waiters: list[tuple[bytes, asyncio.Future[Reply]]] = []
@@ -124,9 +128,9 @@ class UrgDriver:
         status = await self._info("II")
         self.params = params
         self.info = UrgInfo(version_info, params, status.info)
-        if not params.amin_step <= self._s.first_step <= self._s.last_step <= params.amax_step:
+        if not params.amin_step <= self._first_step <= self._last_step <= params.amax_step:
             msg = (
-                f"{self.port}: steps {self._s.first_step}-{self._s.last_step} outside the "
+                f"{self.port}: steps {self._first_step}-{self._last_step} outside the "
                 f"sensor's {params.amin_step}-{params.amax_step}"
             )
             raise ProtocolError(msg)
@@ -137,7 +141,7 @@ class UrgDriver:
         """Start MD streaming of every scan (10 Hz) until QT (§6 step 7)."""
         self._generation = (self._generation % 9999) + 1
         self._md = md_command(
-            self._s.first_step, self._s.last_step, 1, 0, 0, tag=f"g{self._generation}"
+            self._first_step, self._last_step, 1, 0, 0, tag=f"g{self._generation}"
         )
         ack = await self._request(self._md)
         self._check(ack)
@@ -148,10 +152,10 @@ class UrgDriver:
         """QT, drain, MD with a new tag (§6 items 3-5)."""
         self.stats.restarts += 1
         self._restarts_in_a_row += 1
-        if self._restarts_in_a_row > self._s.max_restarts:
+        if self._restarts_in_a_row > self._cfg.max_restarts:
             msg = (
                 f"the laser on {self.port} sends no usable scans: "
-                f"{self._s.max_restarts} stream restarts in a row ({why})"
+                f"{self._cfg.max_restarts} stream restarts in a row ({why})"
             )
             err = LinkError(msg)
             self._fail(err)
@@ -197,8 +201,8 @@ class UrgDriver:
             self._opener,
             port=self.port,
             max_wait_s=max_wait_s,
-            backoff_s=self._s.reopen_backoff_s,
-            backoff_max_s=self._s.reopen_backoff_max_s,
+            backoff_s=self._cfg.reopen_backoff_s,
+            backoff_max_s=self._cfg.reopen_backoff_max_s,
             log_event="urg_reopen_retry",
         )
         self._parser.reset()
@@ -237,7 +241,7 @@ class UrgDriver:
         self._waiters.append(entry)
         try:
             self._write(command)
-            wait = timeout_s if timeout_s is not None else self._s.request_timeout_s
+            wait = timeout_s if timeout_s is not None else self._cfg.request_timeout_s
             try:
                 return await asyncio.wait_for(future, wait)
             except TimeoutError as err:
@@ -264,16 +268,16 @@ class UrgDriver:
             raise ProtocolError(self._refused(reply))
 
     async def _quiet(self) -> None:
-        """Send QT, then wait for ~150 ms of silence (at most ``drain_max_s``), then forget."""
+        """Send QT, wait for ``drain_silence_s`` of silence (``drain_max_s`` at most), forget."""
         self._write(simple_command("QT"))
         loop = asyncio.get_running_loop()
-        deadline = loop.time() + self._s.drain_max_s
+        deadline = loop.time() + self._cfg.drain_max_s
         self._last_rx_ns = self._clock.now_ns()
         while loop.time() < deadline:
             silent_s = (self._clock.now_ns() - self._last_rx_ns) / NS_PER_S
-            if silent_s >= self._s.drain_silence_s:
+            if silent_s >= self._cfg.drain_silence_s:
                 break
-            await asyncio.sleep(self._s.drain_silence_s - silent_s)
+            await asyncio.sleep(self._cfg.drain_silence_s - silent_s)
         self._parser.reset()
 
     # ----- receiving -------------------------------------------------------------------
@@ -374,14 +378,14 @@ class UrgDriver:
                 await self._restart_stream("stream error status")
                 continue
             stalled_s = (now - self._last_scan_ns) / NS_PER_S
-            if stalled_s >= self._s.stall_s:
+            if stalled_s >= self._cfg.stall_s:
                 self.stats.stalls += 1
                 await self._restart_stream(f"no scan for {stalled_s:.2f} s")
                 continue
-            if sum_run >= self._s.sum_error_run:
+            if sum_run >= self._cfg.sum_error_run:
                 await self._restart_stream(f"{sum_run} checksum errors in a row")
                 continue
-            wait_s = self._s.stall_s - stalled_s
+            wait_s = self._cfg.stall_s - stalled_s
             if timeout_s is not None:
                 left_s = timeout_s - (loop.time() - started)
                 if left_s <= 0:

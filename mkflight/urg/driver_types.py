@@ -1,6 +1,7 @@
-"""The URG driver's settings, start-up information and counters (split from the driver).
+"""The URG driver's streamed steps, start-up information and counters.
 
-:mod:`mkflight.urg.driver` re-exports them: import them from there.
+:mod:`mkflight.urg.driver` re-exports them: import them from there. The driver's settings
+are the ``laser`` config section itself (:class:`~mkflight.config.LaserConfig`).
 """
 
 from __future__ import annotations
@@ -11,33 +12,18 @@ from mkflight.config import LaserConfig
 from mkflight.urg.replies import ParserStats
 from mkflight.urg.units import SensorParams
 
-__all__ = ["UrgInfo", "UrgSettings", "UrgStats", "settings_from_config"]
+__all__ = ["UrgInfo", "UrgStats", "streamed_steps"]
 
 
-@dataclass(frozen=True, slots=True)
-class UrgSettings:
-    """Steps to stream, the fixed transport delay and the timing of the recovery rules."""
+def streamed_steps(laser: LaserConfig) -> tuple[int, int]:
+    """``(first, last)`` step of the MD request: every step the configuration uses.
 
-    first_step: int = 44
-    last_step: int = 725
-    request_timeout_s: float = 1.0
-    drain_silence_s: float = 0.15
-    drain_max_s: float = 1.0
-    stall_s: float = 0.3
-    transport_delay_s: float = 0.03
-    max_restarts: int = 5
-    sum_error_run: int = 3
-    reopen_backoff_s: float = 0.1
-    reopen_backoff_max_s: float = 2.0
-
-
-def settings_from_config(laser: LaserConfig) -> UrgSettings:
-    """Stream every step the configuration uses (hat and scan steps)."""
-    return UrgSettings(
-        first_step=min(laser.hat_steps[0], laser.scan_steps[0]),
-        last_step=max(laser.hat_steps[1], laser.scan_steps[1]),
-        stall_s=laser.stall_s,
-        transport_delay_s=laser.transport_delay_s,
+    The hat steps and the scan steps, and the steps between them (one MD streams one
+    contiguous range).
+    """
+    return (
+        min(laser.hat_steps[0], laser.scan_steps[0]),
+        max(laser.hat_steps[1], laser.scan_steps[1]),
     )
 
 

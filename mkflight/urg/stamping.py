@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from mkflight.clock import NS_PER_S
+from mkflight.conversions import MM_PER_M, NS_PER_S
 from mkflight.msgs import Scan
 from mkflight.urg.replies import ScanReply
 from mkflight.urg.timesync import SensorClock
 from mkflight.urg.units import SensorParams, TimestampUnwrapper
 
-__all__ = ["NS_PER_S", "ScanStamper"]
+__all__ = ["ScanStamper"]
 
 
 class ScanStamper:
@@ -46,5 +46,5 @@ class ScanStamper:
         self._sensor_clock.observe(sensor_ms, t_ns, known_ns)
         front_ns = self._sensor_clock.to_host_ns(sensor_ms) + p.step_offset_ns(p.afront_step)
         values = np.asarray(reply.values, dtype=np.float64)
-        ranges = np.where((values >= p.dmin_mm) & (values <= p.dmax_mm), values / 1000.0, np.nan)
+        ranges = np.where((values >= p.dmin_mm) & (values <= p.dmax_mm), values / MM_PER_M, np.nan)
         return Scan(t_ns=front_ns, ranges_m=ranges, first_step=reply.start_step, seq=seq)

@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
-NS_PER_MS = 1_000_000
+from mkflight.conversions import NS_PER_MS
 
 
 @dataclass(frozen=True, slots=True)

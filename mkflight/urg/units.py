@@ -19,6 +19,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Final
 
+from mkflight.conversions import MM_PER_M
 from mkflight.errors import ProtocolError
 from mkflight.urg.codec import TIMESTAMP_MODULUS_MS
 
@@ -115,7 +116,7 @@ def parse_params(info: Mapping[str, str]) -> SensorParams:
 def ranges_m(values: Sequence[int], params: SensorParams = URG_04LX) -> list[float]:
     """Raw values (mm) to ranges in metres; < DMIN (error codes) and > DMAX are NaN (§5)."""
     low, high, nan = params.dmin_mm, params.dmax_mm, math.nan
-    return [v / 1000.0 if low <= v <= high else nan for v in values]
+    return [v / MM_PER_M if low <= v <= high else nan for v in values]
 
 
 def step_body_angle_rad(step: float, params: SensorParams = URG_04LX) -> float:

@@ -14,8 +14,9 @@ import statistics
 import pytest
 
 from mkflight.config import Config
+from mkflight.conversions import NS_PER_S
 from mkflight.io.serial import open_serial
-from mkflight.mk.link import NS_PER_S, LinkSettings, MkLink
+from mkflight.mk.link import LinkSettings, MkLink
 from mkflight.mk.units import MkCalibration
 
 PORT = os.environ.get("MKFLIGHT_MK_PORT")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from mkflight.config import Config, SimFcConfig
+from mkflight.config import Config, MkConfig, SimFcConfig, SimVehicleConfig
 from mkflight.errors import LinkError
 from mkflight.io.serial import open_serial
 from mkflight.io.stream import ByteStream
@@ -24,7 +24,7 @@ SETTINGS = LinkSettings.from_config(Config())
 
 @pytest.fixture
 async def emulator(tmp_path: Path) -> AsyncIterator[FcEmulator]:
-    source = RestingVehicleSource(VehicleParams(), seed=3)
+    source = RestingVehicleSource(VehicleParams.from_config(SimVehicleConfig()), seed=3)
     async with FcEmulator(SimFcConfig(), source, link=tmp_path / "fc0") as emu:
         yield emu
 
@@ -63,7 +63,7 @@ async def test_take_control_then_release_on_close(emulator: FcEmulator) -> None:
 
 
 async def test_extern_gas_is_capped_by_the_stick(tmp_path: Path) -> None:
-    source = RestingVehicleSource(VehicleParams(), seed=3)
+    source = RestingVehicleSource(VehicleParams.from_config(SimVehicleConfig()), seed=3)
     async with FcEmulator(SimFcConfig(stick_gas=100), source) as emulator:
         link = await open_link(emulator)
         await link.next_sample(timeout_s=1.0)
@@ -119,7 +119,9 @@ async def test_silence_then_recovery(emulator: FcEmulator) -> None:
 
 
 async def test_unplug_and_replug_with_reopen(emulator: FcEmulator) -> None:
-    settings = LinkSettings(reopen_backoff_s=0.05, reopen_backoff_max_s=0.2)
+    settings = LinkSettings.from_config(
+        Config(mk=MkConfig(reopen_backoff_s=0.05, reopen_backoff_max_s=0.2))
+    )
     failed = asyncio.Event()
     link = await open_link(emulator, settings, failed)
     await link.next_sample(timeout_s=1.0)

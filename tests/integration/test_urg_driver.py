@@ -12,13 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mkflight.config import LaserConfig
 from mkflight.errors import LinkError
 from mkflight.io.serial import open_serial
 from mkflight.io.stream import ByteStream
 from mkflight.sim.room import box_room, room_caster
 from mkflight.sim.urg_scene import RoomScene, ScenePose
 from mkflight.sim.urg_server import UrgEmulator
-from mkflight.urg.driver import UrgDriver, UrgSettings
+from mkflight.urg.driver import UrgDriver
 from mkflight.urg.hat import hat_height
 from mkflight.urg.units import step_body_angle_rad
 
@@ -33,7 +34,7 @@ async def emulator(tmp_path: Path) -> AsyncIterator[UrgEmulator]:
 
 
 async def open_driver(
-    emulator: UrgEmulator, settings: UrgSettings | None = None, failed: asyncio.Event | None = None
+    emulator: UrgEmulator, laser: LaserConfig | None = None, failed: asyncio.Event | None = None
 ) -> UrgDriver:
     async def opener() -> ByteStream:
         try:
@@ -43,7 +44,7 @@ async def open_driver(
                 failed.set()
             raise
 
-    driver = UrgDriver(await opener(), settings, reopen=opener)
+    driver = UrgDriver(await opener(), laser, reopen=opener)
     await driver.connect()
     await driver.start_stream()
     return driver
@@ -108,7 +109,7 @@ async def test_checksum_errors_are_dropped_and_counted(emulator: UrgEmulator) ->
 
 
 async def test_a_stalled_stream_is_restarted(emulator: UrgEmulator) -> None:
-    driver = await open_driver(emulator, UrgSettings(stall_s=0.3))
+    driver = await open_driver(emulator, LaserConfig(stall_s=0.3))
     await driver.next_scan(timeout_s=1.0)
     emulator.stall_for(0.6)
     scan = await driver.next_scan(timeout_s=3.0)
@@ -119,7 +120,7 @@ async def test_a_stalled_stream_is_restarted(emulator: UrgEmulator) -> None:
 
 
 async def test_a_stream_that_never_recovers_fails_clearly(emulator: UrgEmulator) -> None:
-    driver = await open_driver(emulator, UrgSettings(stall_s=0.15, max_restarts=2))
+    driver = await open_driver(emulator, LaserConfig(stall_s=0.15, max_restarts=2))
     await driver.next_scan(timeout_s=1.0)
     emulator.stall_for(30.0)
     with pytest.raises(LinkError, match=r"sends no usable scans: 2 stream restarts in a row"):
@@ -129,8 +130,8 @@ async def test_a_stream_that_never_recovers_fails_clearly(emulator: UrgEmulator)
 
 async def test_vanish_is_reported_and_reopen_recovers(emulator: UrgEmulator) -> None:
     failed = asyncio.Event()
-    settings = UrgSettings(reopen_backoff_s=0.05, reopen_backoff_max_s=0.2)
-    driver = await open_driver(emulator, settings, failed)
+    laser = LaserConfig(reopen_backoff_s=0.05, reopen_backoff_max_s=0.2)
+    driver = await open_driver(emulator, laser, failed)
     await driver.next_scan(timeout_s=1.0)
     emulator.vanish()
     with pytest.raises(LinkError, match="vanished"):
@@ -156,7 +157,7 @@ async def test_garbage_only_device_fails_with_a_clear_error(tmp_path: Path) -> N
             device.write(b"\x00\xffnot scip\n")
 
     task = asyncio.create_task(spew())
-    driver = UrgDriver(await open_serial(device.path, 115200), UrgSettings(request_timeout_s=0.3))
+    driver = UrgDriver(await open_serial(device.path, 115200), LaserConfig(request_timeout_s=0.3))
     with pytest.raises(LinkError, match=r"no answer to SCIP2\.0 from the laser on /dev/pts/"):
         await driver.connect()
     await driver.close()

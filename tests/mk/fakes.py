@@ -8,6 +8,7 @@ from collections.abc import AsyncIterator, Callable
 
 import pytest
 
+from mkflight.config import Config, MkConfig, SafetyConfig
 from mkflight.errors import LinkError
 from mkflight.io.stream import MemoryStream, memory_pair
 from mkflight.mk.codec import Frame, FrameParser
@@ -18,12 +19,21 @@ from mkflight.mk.units import DEFAULT_CALIBRATION
 MK08 = DebugOut.from_values(
     {0: -12, 1: 31, 2: -13, 3: 33, 4: -3, 5: 14, 6: -2, 7: 480, 9: 118, 10: 200, 11: 271}
 )
-FAST = LinkSettings(
-    answer_timeout_s=0.3,
-    version_retry_s=0.1,
-    stale_s=0.05,
-    release_interval_s=0.005,
-    min_frame_gap_s=0.003,
+
+
+def link_settings(mk: MkConfig | None = None, safety: SafetyConfig | None = None) -> LinkSettings:
+    """The link's settings of a config with these ``mk`` and ``safety`` sections."""
+    return LinkSettings.from_config(Config(mk=mk or MkConfig(), safety=safety or SafetyConfig()))
+
+
+FAST = link_settings(
+    MkConfig(
+        answer_timeout_s=0.3,
+        version_retry_s=0.1,
+        release_interval_s=0.005,
+        min_frame_gap_s=0.003,
+    ),
+    SafetyConfig(mk_stale_s=0.05),
 )
 
 

@@ -7,17 +7,18 @@ import asyncio
 import pytest
 
 from mkflight.clock import ManualClock
+from mkflight.config import MkConfig, SafetyConfig
 from mkflight.errors import CommandRangeError, LinkError
 from mkflight.io.stream import MemoryStream, memory_pair
 from mkflight.mk.codec import Frame, encode_frame
-from mkflight.mk.link import LinkSettings, MkLink
+from mkflight.mk.link import MkLink
 from mkflight.mk.messages import (
     ExternControl,
     VersionInfo,
 )
 from mkflight.mk.units import DEFAULT_CALIBRATION
 
-from .fakes import FAST, MK08, FakeFc, _until
+from .fakes import FAST, MK08, FakeFc, _until, link_settings
 
 
 async def test_connect_reads_the_version(pair: tuple[MkLink, FakeFc]) -> None:
@@ -156,7 +157,8 @@ async def test_renewal_comes_from_the_consumer_only() -> None:
     """A stalled consumer stops refreshing the FC's hold (SPEC §2)."""
     clock = ManualClock()
     host, device = memory_pair("host", "fc")
-    settings = LinkSettings(resubscribe_s=2.0, stale_s=100.0)  # no staleness here
+    no_staleness = SafetyConfig(mk_stale_s=100.0)
+    settings = link_settings(MkConfig(resubscribe_s=2.0), no_staleness)
     link = MkLink(host, settings, DEFAULT_CALIBRATION, clock)
     link.start()
     link.subscribe()
@@ -199,7 +201,7 @@ async def test_reopen_with_backoff_after_the_port_vanished() -> None:
         tasks.append(asyncio.create_task(fc.run()))
         return new_host
 
-    settings = LinkSettings(reopen_backoff_s=0.01, reopen_backoff_max_s=0.02)
+    settings = link_settings(MkConfig(reopen_backoff_s=0.01, reopen_backoff_max_s=0.02))
     link = MkLink(host, settings, DEFAULT_CALIBRATION, reopen=opener)
     await link.connect()
     await device.close()
@@ -222,7 +224,7 @@ async def test_reopen_gives_up_with_a_clear_error() -> None:
     async def opener() -> MemoryStream:
         raise LinkError("/dev/ttyGONE: no such device")
 
-    settings = LinkSettings(reopen_backoff_s=0.01, reopen_backoff_max_s=0.02)
+    settings = link_settings(MkConfig(reopen_backoff_s=0.01, reopen_backoff_max_s=0.02))
     link = MkLink(host, settings, DEFAULT_CALIBRATION, reopen=opener)
     with pytest.raises(LinkError, match=r"/dev/ttyGONE: did not come back within 0.05 s"):
         await link.reopen(max_wait_s=0.05)

@@ -9,6 +9,7 @@ import time
 import pytest
 
 from mkflight.clock import ManualClock
+from mkflight.config import MkConfig, SafetyConfig
 from mkflight.errors import CommandRangeError, LinkError
 from mkflight.io.stream import MemoryStream, memory_pair
 from mkflight.mk.codec import Frame
@@ -17,7 +18,7 @@ from mkflight.mk.messages import DebugOut, ExternControl
 from mkflight.mk.outbox import wire_s
 from mkflight.mk.units import DEFAULT_CALIBRATION
 
-from .fakes import FAST, MK08, FakeFc, _until
+from .fakes import FAST, MK08, FakeFc, _until, link_settings
 
 
 def is_release(frame: Frame) -> bool:
@@ -27,8 +28,9 @@ def is_release(frame: Frame) -> bool:
     return (c.config, c.nick, c.roll, c.yaw, c.gas) == (0, 0, 0, 0, 0)
 
 
-STALE_SETTINGS = LinkSettings(
-    stale_s=0.05, release_after_stale_s=0.3, release_interval_s=0.005, answer_timeout_s=0.5
+STALE_SETTINGS = link_settings(
+    MkConfig(release_interval_s=0.005, answer_timeout_s=0.5),
+    SafetyConfig(mk_stale_s=0.05, mk_release_s=0.3),
 )
 
 

@@ -1,4 +1,7 @@
-"""MK raw DebugOut values <-> SI (SPEC §1 table, ``mk-serial.md`` §6.2, seed TABLE I/II)."""
+"""MK raw DebugOut values <-> SI (SPEC §1 table, ``mk-serial.md`` §6.2, TABLE I/II).
+
+The tables are those of the 2011 QUT CyPhy MikroKopter documentation.
+"""
 
 from __future__ import annotations
 
@@ -34,7 +37,7 @@ from .vectors import MK_08
 
 CAL = DEFAULT_CALIBRATION
 G = 9.81
-#: The seed document TABLE I/II are transcribed from, relative to the shared folder.
+#: The documentation TABLE I/II are transcribed from, relative to the shared folder.
 SEED = "seed/mikrokopter-documentation.txt"
 
 # One count's worth of each SI quantity under the default calibration.
@@ -216,7 +219,7 @@ def test_static_tilt_reads_gravity(pitch: float, roll: float) -> None:
         battery_v=12.0,
         cal=CAL,
     )
-    # The seed's model (eq 7, TABLE I/II): counts = -k sin(angle), in the MK's own counts.
+    # The documentation's model (eq 7, TABLE I/II): counts = -k sin(angle), in the MK's own counts.
     assert abs(counts[ANALOG_ACC_NICK] - (-606.3 * math.sin(pitch))) <= 0.5 + 1e-9
     assert abs(counts[ANALOG_ACC_ROLL] - (-603.44 * math.sin(roll) * math.cos(pitch))) <= 0.5 + 1e-9
     assert abs(counts[ANALOG_ANGLE_NICK] - (-math.degrees(pitch) * 10)) <= 0.5 + 1e-9
@@ -241,7 +244,7 @@ def test_static_tilt_reads_gravity(pitch: float, roll: float) -> None:
         assert abs(got - want) <= res + G * ANGLE_RES_RAD
 
 
-# --- seed TABLE I / II: k by least squares -----------------------------------------------
+# --- TABLE I / II: k by least squares ----------------------------------------------------
 
 TABLE_ANGLES_DEG = (-90, -60, -50, -45, -15, 0, 15, 45, 50, 60, 90)
 
@@ -306,7 +309,7 @@ def test_fit_pitch_all_rows_is_606_3() -> None:
 
 def test_fit_roll_all_rows_is_603_43_because_the_means_are_truncated() -> None:
     """SPEC §1 says all rows fit 603.44; with the printed (truncated) Mean row they give
-    603.4322. The seed's 603.44 is the fit of its measurements (exact means): see below.
+    603.4322. The documentation's 603.44 is the fit of its measurements (exact means): see below.
     """
     k = fit_k(list(TABLE_II.values()))
     assert round(k, 2) == 603.43, f"TABLE II (all 4 rows) fits k = {k:.4f}"

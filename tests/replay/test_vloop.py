@@ -11,7 +11,7 @@ from typing import Any, TypeVar
 
 import pytest
 
-from mkflight.clock import NS_PER_S
+from mkflight.conversions import NS_PER_S
 from mkflight.io.serial import open_serial
 from mkflight.replay.feeder import Feeder, replug_times
 from mkflight.replay.inputs import Input

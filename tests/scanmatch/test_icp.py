@@ -8,8 +8,8 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from mkflight.config import ScanmatchConfig
 from mkflight.scanmatch import (
-    IcpParams,
     KeyframeMatcher,
     Pose,
     between,
@@ -135,7 +135,7 @@ def test_corridor_is_degenerate_and_keeps_the_prior_along_it() -> None:
     res = match(ref, scan(corridor, b, rng), guess)
     assert res.valid
     assert res.degenerate
-    assert res.min_information < IcpParams().degeneracy_threshold
+    assert res.min_information < ScanmatchConfig().degeneracy_threshold
     assert abs(res.pose[0] - guess[0]) < 0.02  # x stays the prediction's
     assert abs(res.pose[1] - b[1]) < 0.01  # y and theta are measured
     assert abs(res.pose[2] - b[2]) < 0.005

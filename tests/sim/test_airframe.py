@@ -121,7 +121,7 @@ def test_battery_for_gives_the_start_voltage_and_the_sag(start_v: float, sag_v: 
 
 def test_nominal_airframe_reads_only_the_sim_section() -> None:
     base = airframe_from_config(Config().sim)
-    assert base == nominal_airframe(Config().sim) == VehicleParams()
+    assert base == nominal_airframe(Config().sim) == VehicleParams.from_config(SimVehicleConfig())
     other_flight_code = Config(
         mk=MkConfig(counts_per_rad=90.0, acc_nick_counts_per_g=500.0, g_mps2=9.8),
         control=ControlConfig(hover_gas=120.0, hover_voltage_v=12.5),
@@ -142,6 +142,9 @@ def test_nominal_airframe_reads_only_the_sim_section() -> None:
         ("vibration_z_ratio", 0.5, "vibration_z_ratio", 0.5),
         ("battery_used_ah", 0.4, "battery_used_ah", 0.4),
         ("debug_jitter_ticks", 2, "debug_jitter_ticks", 2),
+        ("gear_friction", 0.8, "gear_friction", 0.8),
+        ("hat_offset_m", 0.04, "hat_offset_m", 0.04),
+        ("wind_std_mps", 0.3, "wind_std_z_mps", 0.15),
     ],
 )
 def test_nominal_airframe_takes_each_sim_vehicle_key(

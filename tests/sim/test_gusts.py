@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mkflight.config import SimVehicleConfig
 from mkflight.sim.gusts import CHUNK_POINTS, GRID_S, KEPT_CHUNKS, GustSeries, gusts_at
 from mkflight.sim.vehicle import (
     FlightErrors,
@@ -23,13 +24,16 @@ from mkflight.sim.vehicle import (
 )
 
 GUSTY = replace(
-    VehicleParams(),
-    gust_accel_std_mps2=0.2,
-    gust_accel_z_ratio=0.5,
-    gust_tau_s=0.8,
-    wind_std_mps=0.15,
-    wind_std_z_mps=0.06,
-    wind_tau_s=2.0,
+    VehicleParams.from_config(
+        SimVehicleConfig(
+            gust_accel_std_mps2=0.2,
+            gust_accel_z_ratio=0.5,
+            gust_tau_s=0.8,
+            wind_std_mps=0.15,
+            wind_tau_s=2.0,
+        )
+    ),
+    wind_std_z_mps=0.06,  # derived (half the horizontal) from the config: set apart here
 )
 
 

@@ -21,7 +21,7 @@ FLIGHT_SIDE = {"hover.py", "hover_flight.py", "envelope.py"}  # run FlightCore o
 FORBIDDEN = re.compile(
     r"cfg\.(mk|control|estimation|laser)\b|\bMkCalibration\b|\banalog_from_si\b"
     r"|\bimu_from_debug\b|\bLaserConfig\b|\bMkConfig\b|\bControlConfig\b"
-    r"|\bEstimationConfig\b|\.transport_delay_s\b|settings_from_config"
+    r"|\bEstimationConfig\b|\.transport_delay_s\b|streamed_steps"
 )
 
 

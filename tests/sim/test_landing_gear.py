@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mkflight.config import SimVehicleConfig
 from mkflight.sim.landing_gear import crossing_time, transition
 from mkflight.sim.vehicle import (
     FlightErrors,
@@ -22,8 +23,10 @@ from mkflight.sim.vehicle import (
 )
 
 # still air, no drag, no battery sag under load: a given gas is a constant thrust
-STILL = VehicleParams(
-    gusts=False, drag_linear_per_s=0.0, drag_quadratic_per_m=0.0, battery_resistance_ohm=0.0
+STILL = VehicleParams.from_config(
+    SimVehicleConfig(
+        gusts=False, drag_linear_per_s=0.0, drag_quadratic_per_m=0.0, battery_resistance_ohm=0.0
+    )
 )
 G = STILL.g_mps2
 SAG = STILL.gear_sag_m
@@ -161,7 +164,7 @@ def test_static_compression_is_a_few_mm() -> None:
 
 
 def test_a_landed_vehicle_rests_level_and_does_not_slide() -> None:
-    gusty = replace(VehicleParams(), gust_accel_std_mps2=0.25)
+    gusty = VehicleParams.from_config(SimVehicleConfig(gust_accel_std_mps2=0.25))
     s, gas = _descending(0.4, 0.8, height_m=0.2, params=gusty)
     s = replace(s, vel_w_mps=(0.3, -0.2, 0.4), pitch_rad=0.06, roll_rad=-0.04, yaw_rate_radps=0.3)
     s, _ = _record(s, gas, 1.0, 0.05, gusty)
@@ -177,7 +180,7 @@ def test_a_landed_vehicle_rests_level_and_does_not_slide() -> None:
 
 def test_resting_at_nearly_hover_thrust_adds_no_touchdowns() -> None:
     """Spinning up to 95 % of the hover thrust in gusts: the gear chatters, no touchdowns."""
-    gusty = replace(VehicleParams(), gust_accel_std_mps2=0.25)
+    gusty = VehicleParams.from_config(SimVehicleConfig(gust_accel_std_mps2=0.25))
     s = initial_state(gusty, RNG, gust_seed=2)
     s, rows = _record(s, 0.95 * hover_gas_counts(s, gusty), 20.0, 0.05, gusty)
     assert s.touchdowns == ()

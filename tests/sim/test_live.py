@@ -27,7 +27,7 @@ from mkflight.mk.messages import ExternControl
 from mkflight.mk.units import MkCalibration
 from mkflight.msgs import Scan
 from mkflight.sim.live import FAULT_KINDS, Fault, LiveSim, parse_fault, parse_faults
-from mkflight.urg.driver import UrgDriver, settings_from_config
+from mkflight.urg.driver import UrgDriver
 from mkflight.urg.hat import hat_height
 
 CFG = Config(sim=SimConfig(vehicle=SimVehicleConfig(gusts=False)))
@@ -53,7 +53,7 @@ async def open_urg(path: str, cfg: Config = CFG) -> UrgDriver:
     async def opener() -> ByteStream:
         return await open_serial(path, 115200)
 
-    driver = UrgDriver(await opener(), settings_from_config(cfg.laser), reopen=opener)
+    driver = UrgDriver(await opener(), cfg.laser, reopen=opener)
     await driver.connect()
     await driver.start_stream()
     return driver

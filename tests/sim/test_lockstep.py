@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import statistics
 from pathlib import Path
@@ -33,10 +32,6 @@ END_NS = URG_04LX.step_offset_ns(725)
 FRONT_NS = URG_04LX.step_offset_ns(384)
 
 
-def late(params: VehicleParams, **changes: object) -> VehicleParams:
-    return dataclasses.replace(params, **changes)  # type: ignore[arg-type]
-
-
 def arrivals(v: LockstepVehicle, until_ns: int) -> list[tuple[int, PoseFix | RawScan]]:
     """Every laser delivery up to ``until_ns``, polled at the DebugOut instants."""
     out: list[tuple[int, PoseFix | RawScan]] = []
@@ -53,7 +48,9 @@ def test_debug_instants_are_52_ticks_without_jitter() -> None:
 
 
 def test_debug_instants_carry_the_airframes_jitter_and_late_frames() -> None:
-    params = late(VehicleParams(), debug_jitter_ticks=2, debug_late_fraction=0.05)
+    params = VehicleParams.from_config(
+        SimVehicleConfig(debug_jitter_ticks=2, debug_late_fraction=0.05)
+    )
     v = LockstepVehicle(CALM, seed=1, params=params)
     times = [v.next_debug_ns() for _ in range(3000)]
     gaps = [(b - a) / TICK_NS for a, b in itertools.pairwise(times)]
@@ -66,7 +63,9 @@ def test_debug_instants_carry_the_airframes_jitter_and_late_frames() -> None:
 
 
 def test_poses_are_stamped_extra_late_and_delivered_100_ms_plus_extra_plus_jitter() -> None:
-    params = late(VehicleParams(), laser_extra_delay_s=0.02, laser_jitter_s=0.005)
+    params = VehicleParams.from_config(
+        SimVehicleConfig(laser_extra_delay_s=0.02, laser_jitter_s=0.005)
+    )
     v = LockstepVehicle(CALM, seed=2, params=params)
     got = arrivals(v, 5 * S)
     assert len(got) >= 45
@@ -82,7 +81,7 @@ def test_poses_are_stamped_extra_late_and_delivered_100_ms_plus_extra_plus_jitte
 
 
 def test_scans_are_the_urgs_values_stamped_and_delivered_like_the_emulator() -> None:
-    params = late(VehicleParams(), laser_extra_delay_s=0.01)
+    params = VehicleParams.from_config(SimVehicleConfig(laser_extra_delay_s=0.01))
     v = LockstepVehicle(CALM, seed=3, scans=True, scan_steps=(44, 725), params=params)
     got = arrivals(v, 2 * S)
     assert len(got) >= 17

@@ -14,6 +14,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from mkflight.config import SimVehicleConfig
 from mkflight.mk.messages import (
     ANALOG_ACC_NICK,
     ANALOG_ACC_ROLL,
@@ -30,7 +31,7 @@ from mkflight.sim.mk_units import INT16_MAX, INT16_MIN, decode_analog, encode_an
 from mkflight.sim.vehicle import VehicleParams
 from mkflight.sim.vehicle_sensors import ImuSi
 
-NOMINAL = VehicleParams()
+NOMINAL = VehicleParams.from_config(SimVehicleConfig())
 
 # /work/shared/protocols/mk-serial.md §6.2, "Worked example (vector MK-08, using SPEC §1's
 # conversions, g = 9.81)", transcribed: raw DebugOut counts and the SI values they mean.

@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import pytest
 
+from mkflight.config import SimVehicleConfig
 from mkflight.sim.oracle import (
     START_GAINS,
     OracleGains,
@@ -20,7 +21,7 @@ HOLD_S = 20.0
 SETTLE_S = 4.0
 EVALUATIONS = 14
 #: A turbulent airframe of the envelope: the OU gust acceleration dominates.
-GUSTY = VehicleParams(gust_accel_std_mps2=0.2)
+GUSTY = VehicleParams.from_config(SimVehicleConfig(gust_accel_std_mps2=0.2))
 
 
 def _search(params: VehicleParams, gust_seed: int = 3) -> float:
@@ -82,8 +83,9 @@ def test_stronger_gusts_hold_worse() -> None:
 def test_gains_scale_with_the_bandwidth() -> None:
     g = OracleGains(2.0, 0.5, 4.0, 1.0, 0.5).scaled(2.0)
     assert g.as_tuple() == (4.0, 2.0, 8.0, 4.0, 0.5)
-    assert guess_bandwidth(VehicleParams()) == pytest.approx(1.0)  # the nominal 0.1 + 0.1 s
-    slow = replace(VehicleParams(), attitude_delay_s=0.2, attitude_tau_s=0.2)
+    nominal = VehicleParams.from_config(SimVehicleConfig())
+    assert guess_bandwidth(nominal) == pytest.approx(1.0)  # the nominal 0.1 + 0.1 s
+    slow = VehicleParams.from_config(SimVehicleConfig(attitude_delay_s=0.2, attitude_tau_s=0.2))
     assert guess_bandwidth(slow) == pytest.approx(0.5)
 
 

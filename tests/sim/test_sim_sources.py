@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from mkflight.config import SimFcConfig
+from mkflight.config import SimFcConfig, SimVehicleConfig
 from mkflight.mk.codec import FrameParser
 from mkflight.mk.messages import DebugOut, debug_request
 from mkflight.mk.units import DEFAULT_CALIBRATION, imu_from_debug
@@ -16,7 +16,8 @@ from mkflight.sim.sources import FixedSource, RestingVehicleSource
 from mkflight.sim.vehicle import VehicleParams
 
 G = DEFAULT_CALIBRATION.g_mps2
-NOMINAL = VehicleParams()  # the simulated airframe's own scales (the flight decodes)
+# the simulated airframe's own scales (the flight decodes)
+NOMINAL = VehicleParams.from_config(SimVehicleConfig())
 FC = FcModel(SimFcConfig(), FixedSource({}))
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import statistics
 
 import numpy as np
@@ -96,8 +95,8 @@ async def test_the_live_urg_delay_is_30_ms_plus_the_airframes_extra_not_the_driv
 
 
 def test_the_scene_uses_the_airframes_hat_geometry() -> None:
-    params = dataclasses.replace(
-        VehicleParams(), hat_steps=(44, 100), mirror_edge_last_step=120, hat_offset_m=0.1
+    params = VehicleParams.from_config(
+        SimVehicleConfig(hat_steps=(44, 100), mirror_edge_last_step=120, hat_offset_m=0.1)
     )
     hat = HatGeometry.of(params)
     assert hat == HatGeometry((44, 100), 120, 0.1)

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mkflight.config import Config
+from mkflight.config import Config, SimVehicleConfig
 from mkflight.sim.airframe import airframe_from_config
 from mkflight.sim.battery import open_circuit_v
 from mkflight.sim.vehicle import (
@@ -25,7 +25,8 @@ from mkflight.sim.vehicle import (
 )
 from mkflight.sim.vehicle_sensors import battery_reading_v, imu_measured_si, imu_truth_si
 
-CALM = VehicleParams(gusts=False)
+NOMINAL = VehicleParams.from_config(SimVehicleConfig())
+CALM = VehicleParams.from_config(SimVehicleConfig(gusts=False))
 DT = 0.05
 WEIGHT_N = CALM.mass_kg * CALM.g_mps2
 
@@ -56,7 +57,7 @@ def _fly(
 def test_defaults_hover_at_the_airframes_hover_gas_not_the_controllers() -> None:
     cfg = Config()
     p = airframe_from_config(cfg.sim)
-    assert p == VehicleParams()  # the defaults are the nominal airframe of the config
+    assert p == NOMINAL  # the nominal airframe is the sim.vehicle section's defaults
     assert p.hover_gas_counts == cfg.sim.vehicle.hover_gas == 104
     assert cfg.control.hover_gas == 100  # the controller's feed-forward is off by 4 %
     assert thrust_n(104, 11.8, p) == pytest.approx(p.mass_kg * p.g_mps2)
@@ -147,7 +148,7 @@ def test_ground_contact() -> None:
 
 
 def test_same_seed_same_flight() -> None:
-    p = VehicleParams()
+    p = NOMINAL
     runs = []
     for _ in range(2):
         rng = np.random.default_rng(42)
@@ -161,7 +162,7 @@ def test_same_seed_same_flight() -> None:
 
 
 def test_gusts_push_a_few_cm_per_s2() -> None:
-    p = VehicleParams()
+    p = NOMINAL
     s0 = replace(
         initial_state(p, np.random.default_rng(0), pos_w_m=(0.0, 0.0, -1.0), gust_seed=3),
         errors=FlightErrors(),
@@ -203,7 +204,7 @@ def test_flying_specific_force_is_thrust_along_body_z_minus_drag() -> None:
 
 
 def test_measured_imu_adds_trim_bias_and_vibration() -> None:
-    p = VehicleParams(angle_noise_std_rad=0.0)
+    p = VehicleParams.from_config(SimVehicleConfig(angle_noise_std_rad=0.0))
     s = replace(_hovering(p), errors=FlightErrors(0.01, -0.02, (0.1, 0.0, -0.1)))
     rng = np.random.default_rng(0)
     samples = np.array([imu_measured_si(s, p, rng) for _ in range(2000)])
@@ -222,7 +223,7 @@ def test_battery_sags_with_load_and_with_use() -> None:
     s0 = _hovering(p, used_ah=0.0)
     s = _fly(s0, Sticks(gas_counts=hover_gas_counts(s0, p)), 1.0, p)
     assert s.battery_v < open_circuit_v(s.used_ah, p) - 0.3  # I R sag at ~7 A
-    assert s.current_a == pytest.approx(7.3, abs=0.6)  # seed §L: 6.8 A + 0.5 A
+    assert s.current_a == pytest.approx(7.3, abs=0.6)  # §L: 6.8 A + 0.5 A
     assert s.used_ah == pytest.approx(7.3 / 3600, rel=0.1)
 
 
@@ -247,7 +248,7 @@ stick = st.integers(min_value=-300, max_value=300)
 def test_random_inputs_stay_finite_and_physical(
     commands: list[tuple[int, int, int, int]], seed: int, dt_s: float
 ) -> None:
-    p = VehicleParams()
+    p = NOMINAL
     rng = np.random.default_rng(seed)
     s = initial_state(p, rng, pos_w_m=(0.0, 0.0, -1.0))
     for _ in range(5):
@@ -323,7 +324,7 @@ def test_yaw_drifts_at_a_neutral_stick_and_not_on_the_floor() -> None:
 
 def test_fixed_trims_and_biases_add_to_the_per_flight_draws() -> None:
     fixed = replace(
-        VehicleParams(),
+        NOMINAL,
         trim_rad=(0.01, -0.02),
         acc_bias_mps2=(0.1, 0.0, -0.2),
         pitch_trim_std_rad=0.0,
@@ -358,7 +359,7 @@ def test_initial_charge_defaults_to_the_airframes() -> None:
 
 @pytest.mark.parametrize("ratio", [0.3, 0.8, 1.0])
 def test_vibration_on_z_is_its_ratio_of_x_and_y(ratio: float) -> None:
-    p = replace(VehicleParams(), vibration_std_mps2=0.3, vibration_z_ratio=ratio)
+    p = VehicleParams.from_config(SimVehicleConfig(vibration_std_mps2=0.3, vibration_z_ratio=ratio))
     s = replace(_hovering(p), thrust_n=WEIGHT_N)
     rng = np.random.default_rng(1)
     samples = np.array([imu_measured_si(s, p, rng) for _ in range(4000)])
@@ -373,7 +374,7 @@ def test_vibration_on_z_is_its_ratio_of_x_and_y(ratio: float) -> None:
 
 def test_the_rng_passed_to_step_changes_nothing() -> None:
     """The vehicle draws nothing per step: its gusts are a function of (gust_seed, t)."""
-    p = replace(VehicleParams(), gust_accel_std_mps2=0.2)
+    p = VehicleParams.from_config(SimVehicleConfig(gust_accel_std_mps2=0.2))
     s0 = initial_state(p, np.random.default_rng(0), pos_w_m=(0.0, 0.0, -1.0), gust_seed=4)
     a = _fly(s0, Sticks(nick_counts=3, gas_counts=104), 2.0, p, seed=1)
     b = _fly(s0, Sticks(nick_counts=3, gas_counts=104), 2.0, p, seed=2)

@@ -7,13 +7,14 @@ import contextlib
 
 import pytest
 
+from mkflight.config import LaserConfig
 from mkflight.errors import LinkError, ProtocolError
 from mkflight.io.stream import MemoryStream, memory_pair
-from mkflight.urg.driver import UrgDriver, UrgSettings
+from mkflight.urg.driver import UrgDriver
 
 from .vectors import ALL_VECTORS, ExchangeVector
 
-FAST = UrgSettings(drain_silence_s=0.02, drain_max_s=0.2, request_timeout_s=0.3)
+FAST = LaserConfig(drain_silence_s=0.02, drain_max_s=0.2, request_timeout_s=0.3)
 
 
 def reply_of(vector_id: str) -> bytes:
