@@ -275,7 +275,7 @@ class Recorder:
             self.matcher_pid = app.worker.worker_pid
             self.children = _children()
             self._memory("start", elapsed_s)
-        if self.stop_step is None and app.stop_request is not None:
+        if self.stop_step is None and app.stop.request is not None:
             self.stop_step = i
         due_s = self._next_k * self.sample_s
         if elapsed_s >= due_s and due_s <= self.duration_s + 1e-6:

@@ -144,26 +144,33 @@ def replay_seed(
         log_dir=out,
         durable_logs=False,
     )
-    app = ReplayApp(cfg, opts, clock=clock, feeder=feeder, scans={}, use_recorded_poses=False)
     matcher = SeedMatcher(cfg, laser_seed, seed_clock)
-    app.worker = matcher
-    app_ref.append(app)
     first_step: list[int] = []
 
     def on_step(out_: ImuStepOutput) -> None:
         if seed_clock.start_ns is None and out_.phase is Phase.TAKEOFF:
             seed_clock.start_ns = clock.now_ns()
-            first_step.append(app.core.counters.imu_steps + 1)
+            first_step.append(app.flight.core.counters.imu_steps + 1)
         elif (
             seed_clock.start_ns is None
-            and app.stop_request is None
+            and app.flight.stop.request is None
             and clock.now_ns() > SEED_START_NS + TAKEOFF_TIMEOUT_NS
         ):
             app.request_stop(
                 StopRequest.DURATION, f"no take-off in {TAKEOFF_TIMEOUT_NS // 1_000_000_000} s"
             )
 
-    app.on_step = on_step
+    app = ReplayApp(
+        cfg,
+        opts,
+        clock=clock,
+        feeder=feeder,
+        scans={},
+        use_recorded_poses=False,
+        matcher=matcher,
+        on_step=on_step,
+    )
+    app_ref.append(app)
     cpu0, wall0 = time.process_time(), time.perf_counter()
     report = run_lockstep(app, feeder, clock, link_dir)
     wall_s, cpu_s = time.perf_counter() - wall0, time.process_time() - cpu0
