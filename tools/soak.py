@@ -250,8 +250,8 @@ class Recorder:
         """After each step (its command is written): record it; sample memory when due."""
         app = self.app
         assert app is not None
-        assert app.link is not None
-        i, s, stats, link = self.n, self.steps, app.stats, app.link.stats
+        assert app.ports.link is not None
+        i, s, stats, link = self.n, self.steps, app.stats, app.ports.link.stats
         if i >= len(s["arrival_ns"]):
             self.overflow += 1
             return

@@ -1,20 +1,12 @@
 """The flight daemon: one asyncio loop flying :class:`FlightCore` on the real links (SPEC §7).
 
-Tasks (STYLE: pure core per tick, asyncio shell per rate; :mod:`~mkflight.flight.tasks`):
-
-* **MK task** - driven by DebugOut arrival (SPEC §2), not by a timer: each sample runs
-  the 50 ms step (:class:`~mkflight.flight.mk_step.MkStep`) and the ExternControl goes to
-  the port at once; the tables, the events and the status come after the command is
-  written, and twice a second a 'p' request for the pilot's sticks
-  (:mod:`mkflight.safety.pilot`) goes out right behind the command.
-* **laser task** - streams scans and hands each to the scan matcher, which runs in its
-  own process (:class:`~mkflight.flight.matcher_worker.MatcherWorker`) so that a 1-3 ms
-  ICP never delays a command. A finished match goes into the
-  :class:`~mkflight.flight.laser_inbox.LaserInbox`, and the MK task applies it at the
-  start of its next step. The pitch and roll at the scan's time (for the hat, eq 26)
-  come from the newest DebugOut samples (:class:`~mkflight.flight.laser_inbox.AttitudeHistory`).
-* **watchdog task** - a timer that only watches: ``--duration``, a stop that takes too
-  long, the status line and systemd's STATUS.
+:class:`FlightApp` is the shell's way in and way out. In: the pre-flight opens the flight
+folder (:mod:`~mkflight.flight.flight_logs`) and both ports
+(:mod:`~mkflight.flight.links`, every byte recorded by :mod:`~mkflight.flight.taps`),
+starts the scan matcher and runs the checks (:mod:`~mkflight.flight.preflight`); then
+READY, and the three tasks (:mod:`~mkflight.flight.tasks`): the MK task steps on every
+DebugOut (:class:`~mkflight.flight.mk_step.MkStep`), the laser task feeds the matcher
+process, the watchdog watches the time.
 
 One way out (:class:`~mkflight.flight.stop.StopLatch`): SIGINT, SIGTERM, SIGHUP,
 ``--duration``, a failed log write and a crash of the laser or watchdog task become a
@@ -25,10 +17,7 @@ shell closes everything in order: the link hands control back (Config = 0, sever
 frames, also after a crash), the laser gets its QT, the matcher process ends, the
 recordings and logs are flushed and closed and ``flight.json`` gets the summary
 (:mod:`~mkflight.flight.summary`). A crash, a lost FC, an overrun deadline or lost logs
-exit 1 after that, everything else 0. The ports are opened by
-:mod:`~mkflight.flight.links` and recorded by :mod:`~mkflight.flight.taps`, the folder's
-files are :mod:`~mkflight.flight.flight_logs`', the checks
-:mod:`~mkflight.flight.preflight`'s. A replay runs this same shell with its own
+exit 1 after that, everything else 0. A replay runs this same shell with its own
 :class:`~mkflight.flight.policy.FlightPolicy`.
 """
 
@@ -38,7 +27,6 @@ import asyncio
 import contextlib
 import gc
 import math
-import signal
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,16 +36,14 @@ import structlog
 
 from mkflight.clock import NS_PER_S, Clock, MonotonicClock
 from mkflight.config import Config
-from mkflight.errors import FlightError, MkflightError, PreflightError
-from mkflight.eventlog import exception_text
-from mkflight.flight.flight_logs import FlightLogs
+from mkflight.errors import FlightError, PreflightError
 from mkflight.flight.laser_inbox import AttitudeHistory, LaserInbox
-from mkflight.flight.links import open_laser, open_mk
 from mkflight.flight.matcher_worker import MatcherError, MatcherWorker
 from mkflight.flight.mk_commands import MkCommands
 from mkflight.flight.mk_step import MkStep
 from mkflight.flight.monitor import GcWatch, HoldMonitor
 from mkflight.flight.policy import FlightPolicy
+from mkflight.flight.ports import FlightPorts, OpenPorts
 from mkflight.flight.preflight import (
     PreflightReport,
     check_fc,
@@ -69,15 +55,12 @@ from mkflight.flight.sdnotify import Notifier
 from mkflight.flight.stats import StepStats
 from mkflight.flight.status import StatusDisplay
 from mkflight.flight.step import FlightCore, ImuStepOutput
-from mkflight.flight.stop import StopDeadlineError, StopLatch
+from mkflight.flight.stop import StopLatch, stop_signals
 from mkflight.flight.summary import MatcherFigures, ProcessTimes, flight_summary
-from mkflight.flight.taps import PortTaps
-from mkflight.flight.tasks import laser_task, mk_task, watchdog_task
-from mkflight.mk.link import MkLink
+from mkflight.flight.tasks import laser_task, mk_task, supervise, watchdog_task
 from mkflight.msgs import ImuSample
 from mkflight.safety.failsafe import StopRequest
 from mkflight.safety.pilot import PilotWatch
-from mkflight.urg.driver import UrgDriver
 
 log = structlog.get_logger("mkflight.flight")
 
@@ -115,8 +98,8 @@ class FlightApp:
     The collaborators: ``core`` (the pure step), ``stop`` (the latched stop request),
     ``inbox`` and ``attitude`` (what the MK step and the laser task hand each other),
     ``stats``, ``monitor`` and ``gc_watch`` (what the daemon measures of itself),
-    ``status`` (the status line); opened by the pre-flight: ``logs``, ``taps``, ``link``,
-    ``driver``, and the matcher ``worker``.
+    ``status`` (the status line); opened by the pre-flight: the ``ports`` (folder, MK
+    link, URG driver) and the matcher ``worker``.
     """
 
     def __init__(
@@ -154,10 +137,7 @@ class FlightApp:
         self.monitor = HoldMonitor()
         self.gc_watch = GcWatch()
         self.status = StatusDisplay(self.notifier, tty=opts.status_tty)
-        self.logs: FlightLogs | None = None
-        self.taps: PortTaps | None = None
-        self.link: MkLink | None = None
-        self.driver: UrgDriver | None = None
+        self.ports = FlightPorts(clock=self.clock, policy=self.policy, stats=self.stats)
         self.preflight: PreflightReport | None = None
         self.start_ns = 0  # READY on the flight's clock (0: not yet)
         self._preflight_task: asyncio.Task[PreflightReport] | None = None
@@ -169,42 +149,21 @@ class FlightApp:
         log.error("log write failed: landing", error=str(err))
         self.request_stop(StopRequest.CRASH, f"log write failed: {err}")
 
-    async def _open(self) -> tuple[FlightLogs, PortTaps, MkLink, UrgDriver]:
-        """The flight folder, then both ports as links (checks 'log dir', 'FC port', 'laser port')."""
-        opts, cfg, clock = self.opts, self.cfg, self.clock
-        self.logs = logs = FlightLogs(
-            opts.log_dir,
-            cfg,
-            mk_port=opts.mk_port,
-            laser_port=opts.laser_port,
-            clock=clock,
-            on_error=self._log_failed,
-            durable=opts.durable_logs,
-        )
-        self.taps = taps = PortTaps(
-            logs.mk_raw, logs.laser_raw, clock=clock, policy=self.policy, stats=self.stats
-        )
-        open_port = self.policy.open_port
-        self.link = link = await open_mk(
-            opts.mk_port, cfg, clock, taps.mk, lambda p: taps.mark("mk", "o", p), open_port
-        )
-        self.driver = driver = await open_laser(
-            opts.laser_port,
-            cfg,
-            clock,
-            taps.laser,
-            lambda p: taps.mark("laser", "o", p),
-            open_port,
-        )
-        return logs, taps, link, driver
-
     async def run_preflight(self) -> PreflightReport:
         """Open the logs and the links, start the matcher and run every check.
 
         Raises:
             PreflightError: the check that failed, by name.
         """
-        logs, _, link, driver = await self._open()
+        opts = self.opts
+        logs, _, link, driver = await self.ports.open(
+            self.cfg,
+            opts.log_dir,
+            mk_port=opts.mk_port,
+            laser_port=opts.laser_port,
+            durable=opts.durable_logs,
+            on_log_error=self._log_failed,
+        )
         version, samples = await check_fc(link, self.cfg.safety.warn_voltage_v)
         info, scans = await check_laser(driver)
         try:
@@ -254,19 +213,57 @@ class FlightApp:
 
     def event(self, t_ns: int, event: str, **fields: Any) -> None:
         """One ``events.jsonl`` line (nothing before the folder exists or after a failure)."""
-        if self.logs is not None:
-            self.logs.event(t_ns, event, **fields)
+        if self.ports.logs is not None:
+            self.ports.logs.event(t_ns, event, **fields)
 
-    def _mk_step(self) -> MkStep:
+    async def fly(self) -> FlightReport:
+        """Pre-flight, READY, the tasks, and the single way out (module docstring)."""
+        started = ProcessTimes.now()
+        error: BaseException | None = None
+        with stop_signals(asyncio.get_running_loop(), self._on_signal):  # until released
+            try:
+                self._preflight_task = asyncio.create_task(self.run_preflight(), name="preflight")
+                try:
+                    await self._preflight_task
+                except asyncio.CancelledError:
+                    if self.stop.request is None:
+                        raise
+                    error = None  # stopped before take-off: nothing flew
+                else:
+                    gc.collect()
+                    gc.freeze()  # imports and pre-flight objects: never walked again in flight
+                    self.gc_watch.install()
+                    await self.policy.before_ready()
+                    self.notifier.ready()
+                    self.start_ns = self.clock.now_ns()
+                    self.event(self.start_ns, "ready")  # steps use DebugOut from here on
+                    error = await self._run_tasks()
+            except Exception as err:  # every failure leaves through the shutdown
+                error = err
+            finally:
+                summary = await self._shutdown(error, started)
+        if isinstance(error, PreflightError | FlightError):
+            return FlightReport(1, str(error), summary)
+        if error is not None:
+            return FlightReport(1, f"{type(error).__name__}: {error}", summary)
+        if self.ports.logs is not None and self.ports.logs.error is not None:  # logs lost
+            return FlightReport(1, summary["end_reason"], summary)
+        return FlightReport(0, summary["end_reason"], summary)
+
+    def _on_signal(self, request: StopRequest, name: str) -> None:
+        """SIGINT/SIGTERM/SIGHUP: land. After SIGHUP the terminal is gone: no status line."""
+        self.policy.on_signal(name)
+        if name == "SIGHUP":
+            self.status.terminal_gone()
+        self.request_stop(request, name)
+
+    def _mk_step(self, ports: OpenPorts) -> MkStep:
         """The MK task's step, on the links and logs the pre-flight opened."""
-        assert self.link is not None
-        assert self.logs is not None
-        assert self.taps is not None
         return MkStep(
             self.core,
-            MkCommands(self.link, PilotWatch(self.cfg.safety.pilot_stick_counts)),
-            self.logs,
-            self.taps,
+            MkCommands(ports.link, PilotWatch(self.cfg.safety.pilot_stick_counts)),
+            ports.logs,
+            ports.taps,
             clock=self.clock,
             stop=self.stop,
             request_stop=self.request_stop,
@@ -280,70 +277,15 @@ class FlightApp:
             sample_filter=self.sample_filter,
         )
 
-    async def fly(self) -> FlightReport:
-        """Pre-flight, READY, the tasks, and the single way out (module docstring)."""
-        loop = asyncio.get_running_loop()
-        started = ProcessTimes.now()
-        for sig, req in (
-            (signal.SIGINT, StopRequest.SIGINT),
-            (signal.SIGTERM, StopRequest.SIGTERM),
-            (signal.SIGHUP, StopRequest.SIGTERM),  # the terminal or ssh went away: land
-        ):
-            with contextlib.suppress(NotImplementedError, RuntimeError):
-                loop.add_signal_handler(sig, self._on_signal, req, sig.name)
-        error: BaseException | None = None
-        try:
-            self._preflight_task = asyncio.create_task(self.run_preflight(), name="preflight")
-            try:
-                await self._preflight_task
-            except asyncio.CancelledError:
-                if self.stop.request is None:
-                    raise
-                error = None  # stopped before take-off: nothing flew
-            else:
-                gc.collect()
-                gc.freeze()  # imports and pre-flight objects: never walked again in flight
-                self.gc_watch.install()
-                await self.policy.before_ready()
-                self.notifier.ready()
-                self.start_ns = self.clock.now_ns()
-                self.event(self.start_ns, "ready")  # steps use DebugOut from here on
-                error = await self._run_tasks()
-        except Exception as err:  # every failure leaves through the shutdown
-            error = err
-        finally:
-            summary = await self._shutdown(error, started)  # signal handlers stay till released
-            for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-                with contextlib.suppress(NotImplementedError, RuntimeError):
-                    loop.remove_signal_handler(sig)
-        if isinstance(error, PreflightError | FlightError):
-            return FlightReport(1, str(error), summary)
-        if error is not None:
-            return FlightReport(1, f"{type(error).__name__}: {error}", summary)
-        if self.logs is not None and self.logs.error is not None:  # landed, but logs are lost
-            return FlightReport(1, summary["end_reason"], summary)
-        return FlightReport(0, summary["end_reason"], summary)
-
-    def _on_signal(self, request: StopRequest, name: str) -> None:
-        """SIGINT/SIGTERM/SIGHUP: land. After SIGHUP the terminal is gone: no status line."""
-        self.policy.on_signal(name)
-        if name == "SIGHUP":
-            self.status.terminal_gone()
-        self.request_stop(request, name)
-
-    def _start_tasks(self) -> tuple[asyncio.Task[None], set[asyncio.Task[None]]]:
+    def _start_tasks(self, ports: OpenPorts) -> tuple[asyncio.Task[None], set[asyncio.Task[None]]]:
         """The MK task, and the laser and watchdog tasks beside it (in this order)."""
-        assert self.link is not None
-        assert self.driver is not None
-        assert self.logs is not None
-        assert self.taps is not None
-        mk_step, clock = self._mk_step(), self.clock
+        mk_step, clock = self._mk_step(ports), self.clock
         mk = asyncio.create_task(
             mk_task(
-                self.link,
+                ports.link,
                 mk_step,
                 self.stop,
-                self.taps,
+                ports.taps,
                 clock=clock,
                 start_ns=self.start_ns,
                 release_s=self.cfg.safety.mk_release_s,
@@ -352,12 +294,12 @@ class FlightApp:
             name="mk-step",
         )
         laser = laser_task(
-            self.driver,
+            ports.driver,
             self.worker,
             self.inbox,
             self.attitude,
-            self.taps,
-            self.logs,
+            ports.taps,
+            ports.logs,
             clock=clock,
             stale_s=self.cfg.safety.laser_stale_s,
             scan_wanted=self.policy.scan_wanted,
@@ -377,61 +319,12 @@ class FlightApp:
         return mk, others
 
     async def _run_tasks(self) -> BaseException | None:
-        """Run the three tasks; a crash of laser/watchdog lands; the MK task's end ends all."""
-        mk, others = self._start_tasks()
-        crash: BaseException | None = None
-        try:
-            while not mk.done():
-                done, _ = await asyncio.wait({mk, *others}, return_when=asyncio.FIRST_COMPLETED)
-                for task in done - {mk}:
-                    others.discard(task)
-                    exc = task.exception()
-                    if isinstance(exc, StopDeadlineError):  # release now: the shutdown does it
-                        self.event(self.clock.now_ns(), "stop_deadline", error=str(exc))
-                        return exc
-                    if exc is not None and crash is None:
-                        crash = exc
-                        self._task_crashed(task.get_name(), exc)
-            return self._mk_ended(mk.exception()) or crash
-        finally:
-            for task in (mk, *others):
-                task.cancel()
-            for task in (mk, *others):
-                with contextlib.suppress(asyncio.CancelledError, Exception):
-                    await task
-
-    def _task_crashed(self, name: str, exc: BaseException) -> None:
-        """The laser or watchdog task crashed: say so, and land."""
-        bug = not isinstance(exc, MkflightError)  # its stack is wanted
-        self.event(
-            self.clock.now_ns(),
-            "crash",
-            task=name,
-            error=repr(exc),
-            **({"exception": exception_text(exc)} if bug else {}),
+        """Run the three tasks until the MK task ends (:func:`supervise`)."""
+        ports = self.ports.opened()
+        mk, others = self._start_tasks(ports)
+        return await supervise(
+            mk, others, logs=ports.logs, clock=self.clock, request_stop=self.request_stop
         )
-        log.error("task crashed", task=name, error=repr(exc), exc_info=exc if bug else None)
-        self.request_stop(StopRequest.CRASH, f"{name} task: {exc}")
-
-    def _mk_ended(self, exc: BaseException | None) -> BaseException | None:
-        """Why the MK task ended (None: released as the phase machine asked)."""
-        if isinstance(exc, StopDeadlineError):
-            self.event(self.clock.now_ns(), "stop_deadline", error=str(exc))
-            return exc
-        if exc is not None:
-            if isinstance(exc, MkflightError):  # a failure named to the operator
-                self.event(self.clock.now_ns(), "crash", task="mk-step", error=repr(exc))
-                return exc
-            self.event(  # a bug: its stack for whoever reads the logs
-                self.clock.now_ns(),
-                "crash",
-                task="mk-step",
-                error=repr(exc),
-                exception=exception_text(exc),
-            )
-            log.error("task crashed", task="mk-step", exc_info=exc)
-            return exc
-        return None
 
     # ----- the way out --------------------------------------------------------------------
 
@@ -439,21 +332,13 @@ class FlightApp:
         """Release, close the ports and the matcher, write the summary, close the logs."""
         self.notifier.stopping()
         self.gc_watch.uninstall()
-        released = False
-        if self.link is not None:
-            before = self.link.stats.frames_written
-            with contextlib.suppress(Exception):
-                await self.link.close(release=True)
-            released = self.link.stats.frames_written > before  # Config = 0 frames went out
+        released = await self.ports.hand_back()
         self.status.end()
-        if self.driver is not None:
-            with contextlib.suppress(Exception):
-                await self.driver.close()
+        await self.ports.close_laser()
         with contextlib.suppress(Exception):
             await self.worker.close()
         summary = self._summary(error, released, started)
-        if self.logs is not None:
-            self.logs.close(self.clock.now_ns(), summary)
+        self.ports.close_logs(summary)
         return summary
 
     def _summary(
@@ -462,7 +347,7 @@ class FlightApp:
         """The ``flight.json`` summary, from what each collaborator measured."""
         end = ProcessTimes.now()
         now_ns = self.clock.now_ns()
-        logs = self.logs
+        logs, link, driver = self.ports.logs, self.ports.link, self.ports.driver
         return flight_summary(
             error,
             stop_reason=self.stop.reason,
@@ -479,8 +364,8 @@ class FlightApp:
             gc=self.gc_watch.summary(),
             matcher=MatcherFigures(self.inbox.matches, self.inbox.matcher_cpu_s),
             preflight=self.preflight,
-            mk_link=None if self.link is None else self.link.stats.summary(),
-            laser_link=None if self.driver is None else self.driver.stats,
+            mk_link=None if link is None else link.stats.summary(),
+            laser_link=None if driver is None else driver.stats,
             raw=None if logs is None else logs.raw_summary(),
             log_error=None if logs is None else logs.error,
         )

@@ -5,7 +5,9 @@
 * :func:`laser_task` - scans to the matcher process, results into the
   :class:`~mkflight.flight.laser_inbox.LaserInbox` for the next step;
 * :func:`watchdog_task` - a timer that only watches: ``--duration``, the stop deadline,
-  the status line and systemd's STATUS.
+  the status line and systemd's STATUS;
+* :func:`supervise` - runs them together: a crash of the laser or watchdog task lands
+  the vehicle, the MK task's end ends all.
 
 Each takes the collaborators it works with, nothing more.
 """
@@ -20,12 +22,13 @@ import structlog
 
 from mkflight.clock import NS_PER_S, Clock
 from mkflight.control.phases import Phase
-from mkflight.errors import FlightError, LinkError
+from mkflight.errors import FlightError, LinkError, MkflightError
+from mkflight.eventlog import exception_text
 from mkflight.flight.flight_logs import FlightLogs
 from mkflight.flight.laser_inbox import AttitudeHistory, LaserInbox
 from mkflight.flight.matcher_worker import MatcherError, MatcherWorker
 from mkflight.flight.mk_step import MkStep, RequestStop
-from mkflight.flight.stop import StopLatch
+from mkflight.flight.stop import StopDeadlineError, StopLatch
 from mkflight.flight.taps import PortTaps
 from mkflight.mk.link import MkLink
 from mkflight.safety.failsafe import StopRequest
@@ -148,3 +151,74 @@ async def watchdog_task(
         if loop.time() >= next_status:
             next_status = loop.time() + STATUS_PERIOD_S
             show_status()
+
+
+async def supervise(
+    mk: asyncio.Task[None],
+    others: set[asyncio.Task[None]],
+    *,
+    logs: FlightLogs,
+    clock: Clock,
+    request_stop: RequestStop,
+) -> BaseException | None:
+    """Run the MK task and the ``others`` until the MK task ends; then cancel the rest.
+
+    A crash of another task is logged and lands the vehicle (the first one is returned
+    if the MK task ends well); a stop deadline or the MK task's own failure ends the
+    flight at once. Returns the error to exit 1 with (None: released as asked).
+    """
+    crash: BaseException | None = None
+    try:
+        while not mk.done():
+            done, _ = await asyncio.wait({mk, *others}, return_when=asyncio.FIRST_COMPLETED)
+            for task in done - {mk}:
+                others.discard(task)
+                exc = task.exception()
+                if isinstance(exc, StopDeadlineError):  # release now: the shutdown does it
+                    logs.event(clock.now_ns(), "stop_deadline", error=str(exc))
+                    return exc
+                if exc is not None and crash is None:
+                    crash = exc
+                    _task_crashed(task.get_name(), exc, logs, clock)
+                    request_stop(StopRequest.CRASH, f"{task.get_name()} task: {exc}")
+        return _mk_ended(mk.exception(), logs, clock) or crash
+    finally:
+        for task in (mk, *others):
+            task.cancel()
+        for task in (mk, *others):
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+
+
+def _task_crashed(name: str, exc: BaseException, logs: FlightLogs, clock: Clock) -> None:
+    """The laser or watchdog task crashed: its event and log line."""
+    bug = not isinstance(exc, MkflightError)  # its stack is wanted
+    logs.event(
+        clock.now_ns(),
+        "crash",
+        task=name,
+        error=repr(exc),
+        **({"exception": exception_text(exc)} if bug else {}),
+    )
+    log.error("task crashed", task=name, error=repr(exc), exc_info=exc if bug else None)
+
+
+def _mk_ended(exc: BaseException | None, logs: FlightLogs, clock: Clock) -> BaseException | None:
+    """Why the MK task ended (None: released as the phase machine asked), logged."""
+    if isinstance(exc, StopDeadlineError):
+        logs.event(clock.now_ns(), "stop_deadline", error=str(exc))
+        return exc
+    if exc is not None:
+        if isinstance(exc, MkflightError):  # a failure named to the operator
+            logs.event(clock.now_ns(), "crash", task="mk-step", error=repr(exc))
+            return exc
+        logs.event(  # a bug: its stack for whoever reads the logs
+            clock.now_ns(),
+            "crash",
+            task="mk-step",
+            error=repr(exc),
+            exception=exception_text(exc),
+        )
+        log.error("task crashed", task="mk-step", exc_info=exc)
+        return exc
+    return None

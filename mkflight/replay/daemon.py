@@ -63,7 +63,7 @@ class RecordedMatcher(MatcherWorker):
         *,
         now_ns: Callable[[], int],
     ) -> None:
-        """``got_ns``: when each scan's result came back in flight; ``now_ns``: the replay's clock."""
+        """``got_ns``: when each scan's result came back in flight (on ``now_ns``'s clock)."""
         super().__init__(cfg, mode="inline")
         self._scans = scans
         self._got_ns = got_ns or {}
@@ -255,9 +255,9 @@ class ReplayApp:
             worker=matcher or self.recorded,
             on_step=on_step,
         )
-        flight = self.flight
-        feeder.closed["mk"] = lambda: flight.link is not None and flight.link.closed
-        feeder.closed["laser"] = lambda: flight.driver is not None and flight.driver.closed
+        ports = self.flight.ports
+        feeder.closed["mk"] = lambda: ports.link is not None and ports.link.closed
+        feeder.closed["laser"] = lambda: ports.driver is not None and ports.driver.closed
 
     async def fly(self) -> FlightReport:
         """Fly the replayed flight (:meth:`FlightApp.fly`)."""
