@@ -127,8 +127,8 @@ class FlightApp:
         self.notifier = notifier or Notifier.from_env()
         self.policy = policy or FlightPolicy()
         self.worker = worker or MatcherWorker(cfg, mode=cfg.scanmatch.worker)
-        self.on_step = on_step
-        self.sample_filter = sample_filter
+        self._on_step = on_step
+        self._sample_filter = sample_filter
         self.core = FlightCore(cfg, height_m=opts.height_m)
         self.stop = StopLatch(opts.stop_deadline_s)
         self.inbox = LaserInbox()
@@ -273,8 +273,8 @@ class FlightApp:
             monitor=self.monitor,
             notifier=self.notifier,
             policy=self.policy,
-            on_step=self.on_step,
-            sample_filter=self.sample_filter,
+            on_step=self._on_step,
+            sample_filter=self._sample_filter,
         )
 
     def _start_tasks(self, ports: OpenPorts) -> tuple[asyncio.Task[None], set[asyncio.Task[None]]]:

@@ -1,8 +1,11 @@
 """The daemon's three tasks (see :mod:`mkflight.flight.app`): MK step, laser, watchdog.
 
-* :func:`mk_task` - one flight step per DebugOut (:class:`~mkflight.flight.mk_step.MkStep`),
-  until the phase machine releases;
-* :func:`laser_task` - scans to the matcher process, results into the
+* :func:`mk_task` - driven by DebugOut arrival (SPEC §2), not by a timer: one flight step
+  per sample (:class:`~mkflight.flight.mk_step.MkStep`), until the phase machine
+  releases;
+* :func:`laser_task` - streams scans to the scan matcher, which runs in its own process
+  (:class:`~mkflight.flight.matcher_worker.MatcherWorker`) so that a 1-3 ms ICP never
+  delays a command; each result goes into the
   :class:`~mkflight.flight.laser_inbox.LaserInbox` for the next step;
 * :func:`watchdog_task` - a timer that only watches: ``--duration``, the stop deadline,
   the status line and systemd's STATUS;
