@@ -81,7 +81,8 @@ def test_the_inbox_counts_matched_results_and_says_when_each_came() -> None:
     assert inbox.matches == 2
     assert inbox.matcher_cpu_s == pytest.approx(0.005)
     peeked = inbox.peek()
-    assert peeked is not None and peeked.seq == 1
+    assert peeked is not None
+    assert peeked.seq == 1
     taken = [inbox.pop(), inbox.pop(), inbox.pop()]
     assert [(r.seq, got) for r, got in taken] == [(1, None), (2, 2_000), (3, 3_000)]
     assert inbox.peek() is None
