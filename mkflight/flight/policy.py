@@ -12,15 +12,12 @@ hooks do nothing (and whose ports are the serial ports); a replay passes its own
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
+from mkflight.flight.flight_logs import FlightLogs
+from mkflight.flight.laser_pipeline import LaserResult
 from mkflight.io.serial import open_serial
 from mkflight.io.stream import ByteStream
 from mkflight.safety.failsafe import StopRequest
-
-if TYPE_CHECKING:
-    from mkflight.flight.flight_logs import FlightLogs
-    from mkflight.flight.laser_pipeline import LaserResult
 
 NO_STOPS: tuple[tuple[StopRequest, str], ...] = ()
 
