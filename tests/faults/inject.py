@@ -3,9 +3,9 @@
 ``python -m tests.faults.inject FAULT [--after-hold-s S] -- ARGS...`` runs
 ``mkflight ARGS...`` (the real CLI: argument parsing, exit codes, error lines) in this
 process, with :class:`~mkflight.flight.app.FlightApp` built with the fault's seams (its
-policy, notifier, ``on_step`` and ``sample_filter``).
-The fault is armed once the flight has held for ``--after-hold-s`` seconds (counted in
-50 ms steps), so it always hits a vehicle in the air. Faults (``FAULTS``):
+policy, notifier, ``on_step`` and ``sample_filter``). The fault is armed once the flight
+has held for ``--after-hold-s`` seconds (counted in 50 ms steps), so it always hits a
+vehicle in the air. Faults (``FAULTS``):
 
 * ``crash-mk-step``, ``crash-laser``, ``crash-watchdog``: an exception inside that task
   (the step; the laser task's per-scan check; the watchdog's status refresh);
