@@ -253,8 +253,8 @@ class Recorder:
         """After each step (its command is written): record it; sample memory when due."""
         app = self.app
         assert app is not None
-        assert app.link is not None
-        i, s, stats, link = self.n, self.steps, app.stats, app.link.stats
+        assert app.ports.link is not None
+        i, s, stats, link = self.n, self.steps, app.stats, app.ports.link.stats
         if i >= len(s["arrival_ns"]):
             self.overflow += 1
             return
@@ -278,7 +278,7 @@ class Recorder:
             self.matcher_pid = app.worker.worker_pid
             self.children = _children()
             self._memory("start", elapsed_s)
-        if self.stop_step is None and app.stop_request is not None:
+        if self.stop_step is None and app.stop.request is not None:
             self.stop_step = i
         due_s = self._next_k * self.sample_s
         if elapsed_s >= due_s and due_s <= self.duration_s + 1e-6:

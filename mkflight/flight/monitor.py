@@ -1,15 +1,15 @@
 """What the daemon measures of its own hover (SPEC §9): CPU in HOLD, the HOLD precision.
 
-Pure bookkeeping fed once per step by :mod:`mkflight.flight.app`:
+Pure bookkeeping fed once per step by the MK step (:mod:`mkflight.flight.mk_step`):
 
 * **CPU in steady hover**: the process's CPU time and the matcher's (the worker reports
-  its compute time per scan) between the start and the end of HOLD, as % of one core;
+  its compute time per scan; the step passes the running total) between the start and
+  the end of HOLD, as % of one core;
 * **precision estimate**: the std of the estimate minus the set-point (x, y, height) in
   HOLD, from :data:`SETTLE_S` after it began until a stop is requested (as ``sim hover``
   and ``analyze precision`` count). It is the estimate's own view; the simulator's truth
   gives the real one (``analyze precision --truth``). Kept as running sums (Welford), not
-  a list of samples: a flight of hours holds a few numbers (the soak, issue 10, found the
-  list growing by ~5 MB in 30 minutes).
+  a list of samples: a flight of hours holds a few numbers, and its memory stays flat.
 """
 
 from __future__ import annotations
@@ -33,7 +33,6 @@ _Clocks = tuple[float, float, float]  # process CPU s, wall s, matcher CPU s
 class HoldMonitor:
     """CPU and precision over HOLD (see the module docstring)."""
 
-    matcher_cpu_s: float = 0.0
     _cpu_start: _Clocks | None = None
     _cpu_end: _Clocks | None = None
     _t0_ns: int | None = None
@@ -41,17 +40,25 @@ class HoldMonitor:
     _mean: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     _m2: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
 
-    def _clocks(self) -> _Clocks:
-        return time.process_time(), time.perf_counter(), self.matcher_cpu_s
+    @staticmethod
+    def _clocks(matcher_cpu_s: float) -> _Clocks:
+        return time.process_time(), time.perf_counter(), matcher_cpu_s
 
     def on_step(
-        self, t_ns: int, phase: Phase, est: Estimate, sp: Setpoint | None, stopping: bool
+        self,
+        t_ns: int,
+        phase: Phase,
+        est: Estimate,
+        sp: Setpoint | None,
+        stopping: bool,
+        *,
+        matcher_cpu_s: float,
     ) -> None:
-        """One step's phase, estimate and set-point."""
+        """One step's phase, estimate and set-point; the matcher's CPU time so far, s."""
         if phase is Phase.HOLD and self._cpu_start is None:
-            self._cpu_start = self._clocks()
+            self._cpu_start = self._clocks(matcher_cpu_s)
         elif phase is not Phase.HOLD and self._cpu_start is not None and self._cpu_end is None:
-            self._cpu_end = self._clocks()
+            self._cpu_end = self._clocks(matcher_cpu_s)
         if phase is not Phase.HOLD or sp is None or not est.pose_valid:
             return
         if self._t0_ns is None:
@@ -67,11 +74,14 @@ class HoldMonitor:
             self._mean[i] += delta / self._n
             self._m2[i] += delta * (e - self._mean[i])
 
-    def cpu_percent(self) -> dict[str, float] | None:
-        """Daemon and matcher CPU during HOLD, % of one core (None without a HOLD)."""
+    def cpu_percent(self, matcher_cpu_s: float) -> dict[str, float] | None:
+        """Daemon and matcher CPU during HOLD, % of one core (None without a HOLD).
+
+        ``matcher_cpu_s``: the matcher's CPU time so far, for a HOLD that has not ended.
+        """
         if self._cpu_start is None:
             return None
-        start, end = self._cpu_start, self._cpu_end or self._clocks()
+        start, end = self._cpu_start, self._cpu_end or self._clocks(matcher_cpu_s)
         wall_s = end[1] - start[1]
         if wall_s <= 0:
             return None

@@ -1,61 +1,123 @@
-"""The end-of-flight summary in ``flight.json`` (SPEC §6): why, timing, CPU, counters."""
+"""The end-of-flight summary in ``flight.json`` (SPEC §6): why, timing, CPU, counters.
+
+:func:`flight_summary` is a function of the figures the flight's collaborators hand
+over at the end (the shell gathers them); it reads no clock and holds no reference.
+"""
 
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Any
+from collections.abc import Sequence
+from typing import Any, NamedTuple
 
-from mkflight.conversions import MS_PER_S, NS_PER_S
+from mkflight.control.phases import Phase
+from mkflight.conversions import MS_PER_S
+from mkflight.flight.preflight import PreflightReport
 
-if TYPE_CHECKING:
-    from mkflight.flight.app import FlightApp
+
+class ProcessTimes(NamedTuple):
+    """This process's CPU time and the wall clock, s: two readings give the CPU share."""
+
+    cpu_s: float
+    wall_s: float
+
+    @classmethod
+    def now(cls) -> ProcessTimes:
+        """The two clocks now."""
+        return cls(time.process_time(), time.perf_counter())
 
 
-def end_reason(app: FlightApp) -> str:
+class MatcherFigures(NamedTuple):
+    """The scan matcher's work over the flight: results got, their compute time (s)."""
+
+    scans: int
+    cpu_s: float
+
+
+def end_reason(stop_reason: str, failsafes: Sequence[str], phase: Phase) -> str:
     """Why a flight without error ended: the stop request, else the failsafe that landed."""
-    if app.stop_reason:
-        return app.stop_reason
-    events = app.core.counters.failsafe_events
-    return f"failsafe: {events[0]}" if events else f"phase {app.core.phase.name}"
+    if stop_reason:
+        return stop_reason
+    return f"failsafe: {failsafes[0]}" if failsafes else f"phase {phase.name}"
 
 
-def flight_summary(app: FlightApp, error: BaseException | None, released: bool) -> dict[str, Any]:
-    """The ``flight.json`` summary of ``app``'s flight (``released``: Config = 0 went out)."""
-    wall_s = time.perf_counter() - app.wall0_s
-    cpu_s = time.process_time() - app.cpu0_s
-    counters = app.core.counters
+def flight_summary(
+    error: BaseException | None,
+    *,
+    stop_reason: str,
+    phase: Phase,
+    failsafes: Sequence[str],
+    learned: dict[str, object],
+    released: bool,
+    wall_s: float,
+    cpu_s: float,
+    flight_s: float,
+    timing: dict[str, float | int],
+    hold_cpu: dict[str, float] | None,
+    precision: dict[str, float | int] | None,
+    gc: dict[str, float | int],
+    matcher: MatcherFigures,
+    preflight: PreflightReport | None,
+    mk_link: dict[str, int | float | None] | None,
+    laser_link: object | None,
+    raw: dict[str, Any] | None,
+    log_error: OSError | None,
+) -> dict[str, Any]:
+    """The ``flight.json`` summary.
+
+    Args:
+        error: what ended the flight with exit 1 (None: it ended as asked).
+        stop_reason: the first stop request's reason ("" if none came).
+        phase: the phase machine's last phase.
+        failsafes: the failsafe events, in order.
+        learned: what the flight learned of its airframe.
+        released: Config = 0 frames went out at the end.
+        wall_s: wall time from the start of the flight's process work, s.
+        cpu_s: this process's CPU time over ``wall_s``, s.
+        flight_s: READY to the end, s (0 without READY).
+        timing: the step timing figures.
+        hold_cpu: CPU in HOLD, % of one core (None without a HOLD).
+        precision: the HOLD precision estimate (None with too few samples).
+        gc: the garbage collector's pauses.
+        matcher: the scan matcher's counters.
+        preflight: the pre-flight's report (None: it did not complete).
+        mk_link: the MK link's counters (None: never opened).
+        laser_link: the URG driver's stats (None: never opened).
+        raw: the raw recorders' counters (None: no flight folder).
+        log_error: the write error that stopped the logs (None: none).
+    """
     out: dict[str, Any] = {
-        "end_reason": str(error) if error is not None else end_reason(app),
-        "exit_code": 0 if error is None and not (app.logs and app.logs.error) else 1,
+        "end_reason": str(error)
+        if error is not None
+        else end_reason(stop_reason, failsafes, phase),
+        "exit_code": 0 if error is None and not log_error else 1,
         "duration_s": round(wall_s, 3),
-        "flight_s": round((app.clock.now_ns() - app.start_ns) / NS_PER_S, 3)
-        if app.start_ns
-        else 0.0,
-        "final_phase": app.core.phase.name,
+        "flight_s": round(flight_s, 3),
+        "final_phase": phase.name,
         "released": released,
-        "failsafes": list(counters.failsafe_events),
-        "learned": app.core.learned(),
-        "timing": app.stats.summary(),
+        "failsafes": list(failsafes),
+        "learned": learned,
+        "timing": timing,
         "cpu_percent_of_one_core": round(100.0 * cpu_s / wall_s, 2) if wall_s > 0 else None,
-        "cpu_percent_in_hold": app.monitor.cpu_percent(),
-        "precision_estimate": app.monitor.precision(),
-        "gc": app.gc_watch.summary(),
+        "cpu_percent_in_hold": hold_cpu,
+        "precision_estimate": precision,
+        "gc": gc,
         "matcher": {
-            "scans": app.matches,
-            "cpu_ms_per_scan": round(MS_PER_S * app.monitor.matcher_cpu_s / app.matches, 3)
-            if app.matches
+            "scans": matcher.scans,
+            "cpu_ms_per_scan": round(MS_PER_S * matcher.cpu_s / matcher.scans, 3)
+            if matcher.scans
             else None,
         },
     }
-    if app.preflight is not None:
-        out["preflight"] = app.preflight.as_dict()
-    if app.link is not None:
-        out["mk_link"] = app.link.stats.summary()
-    if app.driver is not None:
-        out["laser_link"] = _plain(app.driver.stats)
-    if app.logs is not None:
-        out.update(app.logs.raw_summary())
-        out["log_error"] = app.logs.error and str(app.logs.error)
+    if preflight is not None:
+        out["preflight"] = preflight.as_dict()
+    if mk_link is not None:
+        out["mk_link"] = mk_link
+    if laser_link is not None:
+        out["laser_link"] = _plain(laser_link)
+    if raw is not None:
+        out.update(raw)
+        out["log_error"] = log_error and str(log_error)
     return out
 
 

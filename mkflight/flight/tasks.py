@@ -1,124 +1,228 @@
 """The daemon's three tasks (see :mod:`mkflight.flight.app`): MK step, laser, watchdog.
 
-* :func:`mk_task` - one flight step per DebugOut, until the phase machine releases;
-* :func:`laser_task` - scans to the matcher process, results queued for the next step;
+* :func:`mk_task` - driven by DebugOut arrival (SPEC §2), not by a timer: one flight step
+  per sample (:class:`~mkflight.flight.mk_step.MkStep`), until the phase machine
+  releases;
+* :func:`laser_task` - streams scans to the scan matcher, which runs in its own process
+  (:class:`~mkflight.flight.matcher_worker.MatcherWorker`) so that a 1-3 ms ICP never
+  delays a command; each result goes into the
+  :class:`~mkflight.flight.laser_inbox.LaserInbox` for the next step;
 * :func:`watchdog_task` - a timer that only watches: ``--duration``, the stop deadline,
-  the status line and systemd's STATUS.
+  the status line and systemd's STATUS;
+* :func:`supervise` - runs them together: a crash of the laser or watchdog task lands
+  the vehicle, the MK task's end ends all.
+
+Each takes the collaborators it works with, nothing more.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-from typing import TYPE_CHECKING
+from collections.abc import Awaitable, Callable
 
 import structlog
 
+from mkflight.clock import Clock
 from mkflight.control.phases import Phase
 from mkflight.conversions import NS_PER_S
-from mkflight.errors import FlightError, LinkError
-from mkflight.flight.matcher_worker import MatcherError
+from mkflight.errors import FlightError, LinkError, MkflightError
+from mkflight.eventlog import exception_text
+from mkflight.flight.flight_logs import FlightLogs
+from mkflight.flight.laser_inbox import AttitudeHistory, LaserInbox
+from mkflight.flight.matcher_worker import MatcherError, MatcherWorker
+from mkflight.flight.mk_step import MkStep, RequestStop
+from mkflight.flight.stop import StopDeadlineError, StopLatch
+from mkflight.flight.taps import PortTaps
+from mkflight.mk.link import MkLink
 from mkflight.safety.failsafe import StopRequest
-
-if TYPE_CHECKING:
-    from mkflight.flight.app import FlightApp
+from mkflight.urg.driver import UrgDriver
 
 log = structlog.get_logger("mkflight.flight")
 
 WATCH_PERIOD_S = 0.05
 STATUS_PERIOD_S = 0.5
 FC_REOPEN_S = 3.0  # a vanished FC port: this long to come back, only to hand control back
+MK_TIMEOUT_MARGIN_S = 0.3  # after the link's release for lack of DebugOut: the flight ends
+LASER_REOPEN_S = 30.0  # a vanished laser port: this long to come back
 
 
-class StopDeadlineError(FlightError):
-    """A stop request did not end in RELEASED in time: hand control back regardless."""
+async def mk_task(
+    link: MkLink,
+    mk_step: MkStep,
+    stop: StopLatch,
+    taps: PortTaps,
+    *,
+    clock: Clock,
+    start_ns: int,
+    release_s: float,
+    before_subscribe: Callable[[], Awaitable[None]],
+) -> None:
+    """The 50 ms step, on every DebugOut from ``start_ns`` (READY), until RELEASED.
 
-
-async def mk_task(app: FlightApp) -> None:
-    """The 50 ms step, on every DebugOut, until the phase machine releases."""
-    link = app.link
-    assert link is not None
-    # The link hands control back after mk_release_s without DebugOut; a little later
-    # the flight ends (well inside systemd's WatchdogSec = 2 s).
-    timeout_s = app.cfg.safety.mk_release_s + 0.3
-    await app.before_subscribe()
-    link.set_blind_command(app.blind_command)  # asked only when the data goes stale
+    The link hands control back after ``release_s`` without DebugOut; a little later the
+    flight ends (well inside systemd's WatchdogSec = 2 s).
+    """
+    timeout_s = release_s + MK_TIMEOUT_MARGIN_S
+    await before_subscribe()
+    link.set_blind_command(mk_step.blind_command)  # asked only when the data goes stale
     link.subscribe()  # a fresh subscription: pre-flight may have outlasted the last one
     while True:
         try:
             sample = await link.next_sample(timeout_s)
-            if sample.t_ns < app.start_ns:
+            if sample.t_ns < start_ns:
                 continue  # older than READY: the FC may have stopped streaming since
-            check_deadline(app)
-            out = app.step(sample)  # its command's write may find the port gone
+            stop.check_deadline(clock.now_ns())
+            out = mk_step.step(sample)  # its command's write may find the port gone
         except LinkError as err:
             if link.error is not None:  # the port itself failed: try to hand back
                 with contextlib.suppress(Exception):  # nothing may keep us from handing back
-                    app.mark("mk", "c", str(err))
+                    taps.mark("mk", "c", str(err))
                 with contextlib.suppress(LinkError, TimeoutError):
                     async with asyncio.timeout(FC_REOPEN_S):
                         await link.reopen(max_wait_s=FC_REOPEN_S)  # releases first
             msg = f"FlightCtrl lost: {err}; it hands control to the pilot's sticks"
             raise FlightError(msg) from err
         if out.phase is Phase.RELEASED:
-            if app.core.handed_in_air:  # the last resort: say so, exit 1
+            if mk_step.core.handed_in_air:  # the last resort: say so, exit 1
                 msg = "handed to the pilot in the air: the descent without height found no floor"
                 raise FlightError(msg)
             return
 
 
-def check_deadline(app: FlightApp) -> None:
-    """A stop request not landed in time: end the flight (the shutdown releases)."""
-    deadline_s = app.opts.stop_deadline_s
-    now = app.clock.now_ns()
-    if app.stop_at_ns is not None and (now - app.stop_at_ns) / NS_PER_S > deadline_s:
-        msg = f"the landing did not end within {deadline_s:g} s of the stop request"
-        raise StopDeadlineError(msg)
+async def laser_task(
+    driver: UrgDriver,
+    worker: MatcherWorker,
+    inbox: LaserInbox,
+    attitude: AttitudeHistory,
+    taps: PortTaps,
+    logs: FlightLogs,
+    *,
+    clock: Clock,
+    stale_s: float,
+    scan_wanted: Callable[[int], bool],
+) -> None:
+    """Scans to the matcher, at the attitude of their time; results into ``inbox``.
 
-
-async def laser_task(app: FlightApp) -> None:
-    """Scans to the matcher process; results queued for the MK task."""
-    assert app.driver is not None
-    timeout_s = max(1.0, app.cfg.safety.laser_stale_s * 3)
+    ``stale_s`` is the laser's staleness limit; a scan that does not come in three of
+    them (at least 1 s) makes the driver restart the stream. ``scan_wanted(seq)`` may
+    skip a scan.
+    """
+    timeout_s = max(1.0, stale_s * 3)
     while True:
         try:
-            scan = await app.driver.next_scan(timeout_s)
+            scan = await driver.next_scan(timeout_s)
         except LinkError as err:
-            if app.driver.error is None:  # no scan in time: the driver keeps restarting
-                app.event(app.clock.now_ns(), "laser_silent", error=str(err))
+            if driver.error is None:  # no scan in time: the driver keeps restarting
+                logs.event(clock.now_ns(), "laser_silent", error=str(err))
                 continue  # and the step's laser staleness check lands the vehicle
-            app.event(app.clock.now_ns(), "laser_lost", error=str(err))
-            app.mark("laser", "c", str(err))
+            logs.event(clock.now_ns(), "laser_lost", error=str(err))
+            taps.mark("laser", "c", str(err))
             log.warning("laser lost", error=str(err))
-            await app.driver.reopen(max_wait_s=30.0)
-            app.event(app.clock.now_ns(), "laser_reopened")
+            await driver.reopen(max_wait_s=LASER_REOPEN_S)
+            logs.event(clock.now_ns(), "laser_reopened")
             continue
-        if not app.scan_wanted(scan.seq):
+        if not scan_wanted(scan.seq):
             continue
-        pitch, roll = app.attitude_at(scan.t_ns)
+        pitch, roll = attitude.at(scan.t_ns)
         try:
-            result = await app.worker.process(scan, pitch, roll)
+            result = await worker.process(scan, pitch, roll)
         except MatcherError as err:
             msg = f"scan matcher failed: {err}"
             raise FlightError(msg) from err
-        app.monitor.matcher_cpu_s += result.compute_s
-        app.matches += 1
-        app.result_ns[result.seq] = app.clock.now_ns()  # the scan event says when
-        app.pending.append(result)
+        inbox.put_matched(result, clock.now_ns())
 
 
-async def watchdog_task(app: FlightApp) -> None:
-    """Duration, stop deadline, status line and STATUS: a timer that only watches."""
+async def watchdog_task(
+    clock: Clock,
+    stop: StopLatch,
+    *,
+    start_ns: int,
+    duration_s: float | None,
+    request_stop: RequestStop,
+    show_status: Callable[[], None],
+) -> None:
+    """``--duration``, the stop deadline, the status line: a timer that only watches."""
     next_status = 0.0
     loop = asyncio.get_running_loop()  # its time: the lock-step clock in a replay
     while True:
         await asyncio.sleep(WATCH_PERIOD_S)
-        now = app.clock.now_ns()
-        elapsed_s = (now - app.start_ns) / NS_PER_S
-        duration_s = app.opts.duration_s
-        if duration_s is not None and elapsed_s >= duration_s and app.stop_request is None:
-            app.request_stop(StopRequest.DURATION, f"--duration {duration_s:g} s")
-        check_deadline(app)
+        now = clock.now_ns()
+        elapsed_s = (now - start_ns) / NS_PER_S
+        if duration_s is not None and elapsed_s >= duration_s and stop.request is None:
+            request_stop(StopRequest.DURATION, f"--duration {duration_s:g} s")
+        stop.check_deadline(clock.now_ns())
         if loop.time() >= next_status:
             next_status = loop.time() + STATUS_PERIOD_S
-            app.show_status()
+            show_status()
+
+
+async def supervise(
+    mk: asyncio.Task[None],
+    others: set[asyncio.Task[None]],
+    *,
+    logs: FlightLogs,
+    clock: Clock,
+    request_stop: RequestStop,
+) -> BaseException | None:
+    """Run the MK task and the ``others`` until the MK task ends; then cancel the rest.
+
+    A crash of another task is logged and lands the vehicle (the first one is returned
+    if the MK task ends well); a stop deadline or the MK task's own failure ends the
+    flight at once. Returns the error to exit 1 with (None: released as asked).
+    """
+    crash: BaseException | None = None
+    try:
+        while not mk.done():
+            done, _ = await asyncio.wait({mk, *others}, return_when=asyncio.FIRST_COMPLETED)
+            for task in done - {mk}:
+                others.discard(task)
+                exc = task.exception()
+                if isinstance(exc, StopDeadlineError):  # release now: the shutdown does it
+                    logs.event(clock.now_ns(), "stop_deadline", error=str(exc))
+                    return exc
+                if exc is not None and crash is None:
+                    crash = exc
+                    _task_crashed(task.get_name(), exc, logs, clock)
+                    request_stop(StopRequest.CRASH, f"{task.get_name()} task: {exc}")
+        return _mk_ended(mk.exception(), logs, clock) or crash
+    finally:
+        for task in (mk, *others):
+            task.cancel()
+        for task in (mk, *others):
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+
+
+def _task_crashed(name: str, exc: BaseException, logs: FlightLogs, clock: Clock) -> None:
+    """The laser or watchdog task crashed: its event and log line."""
+    bug = not isinstance(exc, MkflightError)  # its stack is wanted
+    logs.event(
+        clock.now_ns(),
+        "crash",
+        task=name,
+        error=repr(exc),
+        **({"exception": exception_text(exc)} if bug else {}),
+    )
+    log.error("task crashed", task=name, error=repr(exc), exc_info=exc if bug else None)
+
+
+def _mk_ended(exc: BaseException | None, logs: FlightLogs, clock: Clock) -> BaseException | None:
+    """Why the MK task ended (None: released as the phase machine asked), logged."""
+    if isinstance(exc, StopDeadlineError):
+        logs.event(clock.now_ns(), "stop_deadline", error=str(exc))
+        return exc
+    if exc is not None:
+        if isinstance(exc, MkflightError):  # a failure named to the operator
+            logs.event(clock.now_ns(), "crash", task="mk-step", error=repr(exc))
+            return exc
+        logs.event(  # a bug: its stack for whoever reads the logs
+            clock.now_ns(),
+            "crash",
+            task="mk-step",
+            error=repr(exc),
+            exception=exception_text(exc),
+        )
+        log.error("task crashed", task="mk-step", exc_info=exc)
+        return exc
+    return None

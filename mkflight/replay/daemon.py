@@ -1,7 +1,8 @@
 """The daemon as a replay runs it: :class:`FlightApp` unchanged, watched and pinned.
 
 :class:`ReplayApp` is the flight daemon (the same pre-flight, links, driver, tasks and
-step) with replay-only additions, none of which changes what it computes:
+step) run with a :class:`ReplayPolicy` and a :class:`RecordedMatcher`, whose additions
+change nothing it computes:
 
 * an operator's stop (SIGINT, SIGTERM, ``--duration``) comes before the step that first
   saw it in flight;
@@ -24,19 +25,21 @@ step) with replay-only additions, none of which changes what it computes:
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from mkflight.config import Config
 from mkflight.conversions import NS_PER_S
-from mkflight.flight.app import FlightApp, FlightOptions
+from mkflight.flight.app import FlightApp, FlightOptions, FlightReport
+from mkflight.flight.flight_logs import FlightLogs
 from mkflight.flight.laser_pipeline import LaserResult
 from mkflight.flight.matcher_worker import MatcherWorker
+from mkflight.flight.policy import FlightPolicy
 from mkflight.flight.sdnotify import Notifier
 from mkflight.flight.step import ImuStepOutput
 from mkflight.io.stream import ByteStream
 from mkflight.logs import table3, table4
-from mkflight.msgs import ImuSample, Pose2D, Scan
+from mkflight.msgs import Pose2D, Scan
 from mkflight.replay.feeder import Feeder
 from mkflight.replay.inputs import RecordedScan
 from mkflight.replay.vloop import VirtualClock
@@ -53,13 +56,18 @@ class RecordedMatcher(MatcherWorker):
     """
 
     def __init__(
-        self, cfg: Config, scans: dict[int, RecordedScan], got_ns: dict[int, int] | None = None
+        self,
+        cfg: Config,
+        scans: dict[int, RecordedScan],
+        got_ns: dict[int, int] | None = None,
+        *,
+        now_ns: Callable[[], int],
     ) -> None:
+        """``got_ns``: when each scan's result came back in flight (on ``now_ns``'s clock)."""
         super().__init__(cfg, mode="inline")
         self._scans = scans
         self._got_ns = got_ns or {}
-        #: the replay's clock (set by :class:`ReplayApp`)
-        self._now_ns: Callable[[], int] = lambda: 0
+        self._now_ns = now_ns
         self.recorded_used = 0
         self.matched = 0
         self.stamp_differs = 0
@@ -110,8 +118,104 @@ class RecordedMatcher(MatcherWorker):
         )
 
 
-class ReplayApp(FlightApp):
-    """:class:`FlightApp` on replayed ports (see the module docstring)."""
+class ReplayPolicy(FlightPolicy):
+    """What a replay pins and watches in the flight shell (see the module docstring)."""
+
+    def __init__(
+        self,
+        *,
+        clock: VirtualClock,
+        feeder: Feeder,
+        scans: dict[int, RecordedScan],
+        ready_ns: int | None = None,
+        subscribe_ns: int | None = None,
+        step_stops: list[tuple[int, StopRequest, str]] | None = None,
+        intact_end_ns: int | None = None,
+    ) -> None:
+        self._clock = clock
+        self._feeder = feeder
+        self._ready_ns = ready_ns
+        self._subscribe_ns = subscribe_ns
+        self._step_stops = sorted(step_stops or [], key=lambda s: s[0])
+        self._steps = {seq: s.step for seq, s in scans.items() if s.step is not None}
+        self._intact_end_ns = intact_end_ns
+        #: each table's last row index written by the intact end (a recording cut short)
+        self.rows_at_intact_end: dict[str, int] = {}
+
+    async def open_port(self, path: str, baudrate: int) -> ByteStream:
+        """A memory port when the feeder plays from memory, else the real (pty) open."""
+        if self._feeder.memory:
+            return self._feeder.open_memory(path)
+        return await super().open_port(path, baudrate)
+
+    def on_bytes(self, port: str, direction: str, n_bytes: int) -> None:
+        """Tell the feeder what the daemon consumed and sent."""
+        if direction == "r":
+            self._feeder.on_read(port, n_bytes)
+        elif direction == "w":
+            self._feeder.on_wrote(port, n_bytes)
+
+    def on_mark(self, port: str, kind: str) -> None:
+        """Tell the feeder the port is open or given up."""
+        if kind == "o":
+            self._feeder.on_open(port)
+        elif kind == "c":
+            self._feeder.on_lost(port)
+
+    async def _until(self, t_ns: int | None) -> None:
+        """Sleep on the lock-step clock until ``t_ns`` (None: return at once)."""
+        if t_ns is not None:
+            wait_ns = t_ns - self._clock.now_ns()
+            if wait_ns > 0:
+                await asyncio.sleep(wait_ns / NS_PER_S)
+
+    async def before_ready(self) -> None:
+        """Wait (on the lock-step clock) until the original flight's READY."""
+        await self._until(self._ready_ns)
+
+    async def before_subscribe(self) -> None:
+        """The MK task's first 'd' goes out when it went out in flight.
+
+        The task started some ms after READY there; a DebugOut sent at once in answer can
+        find the wire still busy with the 'd' and queue, so that the next command replaces
+        it: the frame numbers depend on that time.
+        """
+        await self._until(self._subscribe_ns)
+
+    def stops_due(self, steps: int) -> Sequence[tuple[StopRequest, str]]:
+        """The recorded operator stops that the original's next step saw first."""
+        due: list[tuple[StopRequest, str]] = []
+        while self._step_stops and self._step_stops[0][0] <= steps:
+            _, request, reason = self._step_stops.pop(0)
+            due.append((request, reason))
+        return due
+
+    def after_step(self, logs: FlightLogs) -> None:
+        """Note the tables' last rows while the recording was intact."""
+        if self._intact_end_ns is not None and self._clock.now_ns() <= self._intact_end_ns:
+            for name, writer in ((table4.FILE_NAME, logs.t4), (table3.FILE_NAME, logs.t3)):
+                if writer.last_index is not None:
+                    self.rows_at_intact_end[name] = writer.last_index
+
+    def on_signal(self, name: str) -> None:
+        """SIGINT/SIGTERM/SIGHUP end the replay (there is no vehicle to land)."""
+        raise KeyboardInterrupt(name)
+
+    def scan_wanted(self, seq: int) -> bool:
+        """A scan the original flight applied (the others it skipped: its matcher was busy)."""
+        return not self._steps or seq in self._steps
+
+    def laser_result_due(self, result: LaserResult, step: int) -> bool:
+        """A recorded scan enters at its recorded step; others at once."""
+        return step >= self._steps.get(result.seq, 0)
+
+
+class ReplayApp:
+    """The flight daemon on replayed ports: :class:`FlightApp` with a :class:`ReplayPolicy`.
+
+    ``matcher``: the scan matcher (default: :class:`RecordedMatcher` on ``scans``, their
+    recorded results if ``use_recorded_poses``); ``on_step`` sees every step's output.
+    """
 
     def __init__(
         self,
@@ -126,100 +230,47 @@ class ReplayApp(FlightApp):
         subscribe_ns: int | None = None,
         step_stops: list[tuple[int, StopRequest, str]] | None = None,
         intact_end_ns: int | None = None,
+        matcher: MatcherWorker | None = None,
+        on_step: Callable[[ImuStepOutput], None] | None = None,
     ) -> None:
-        super().__init__(cfg, opts, clock=clock, notifier=Notifier(None))
-        self._intact_end_ns = intact_end_ns
-        #: each table's last row index written by the intact end (a recording cut short)
-        self.rows_at_intact_end: dict[str, int] = {}
-        self.feeder = feeder
-        self._ready_ns = ready_ns
-        self._subscribe_ns = subscribe_ns
-        self._step_stops = sorted(step_stops or [], key=lambda s: s[0])
-        self._steps = {seq: s.step for seq, s in scans.items() if s.step is not None}
+        self.policy = ReplayPolicy(
+            clock=clock,
+            feeder=feeder,
+            scans=scans,
+            ready_ns=ready_ns,
+            subscribe_ns=subscribe_ns,
+            step_stops=step_stops,
+            intact_end_ns=intact_end_ns,
+        )
         got = {seq: t for seq, s in scans.items() if (t := s.back_ns) is not None}
-        self.recorded = RecordedMatcher(cfg, scans if use_recorded_poses else {}, got)
-        self.recorded._now_ns = clock.now_ns
-        self.worker = self.recorded
-        feeder.closed["mk"] = lambda: self.link is not None and self.link.closed
-        feeder.closed["laser"] = lambda: self.driver is not None and self.driver.closed
+        self.recorded = RecordedMatcher(
+            cfg, scans if use_recorded_poses else {}, got, now_ns=clock.now_ns
+        )
+        self.flight = FlightApp(
+            cfg,
+            opts,
+            clock=clock,
+            notifier=Notifier(None),
+            policy=self.policy,
+            worker=matcher or self.recorded,
+            on_step=on_step,
+        )
+        ports = self.flight.ports
+        feeder.closed["mk"] = lambda: ports.link is not None and ports.link.closed
+        feeder.closed["laser"] = lambda: ports.driver is not None and ports.driver.closed
 
-    async def open_port(self, path: str, baudrate: int) -> ByteStream:
-        """A memory port when the feeder plays from memory, else the real (pty) open."""
-        if self.feeder.memory:
-            return self.feeder.open_memory(path)
-        return await super().open_port(path, baudrate)
+    async def fly(self) -> FlightReport:
+        """Fly the replayed flight (:meth:`FlightApp.fly`)."""
+        return await self.flight.fly()
 
-    def _mk_tap(self, direction: str, t_ns: int, data: bytes) -> None:
-        super()._mk_tap(direction, t_ns, data)
-        if direction == "r":
-            self.feeder.on_read("mk", len(data))
-        elif direction == "w":
-            self.feeder.on_wrote("mk", len(data))
+    def request_stop(self, request: StopRequest, reason: str) -> None:
+        """Ask the replayed daemon for its soft landing (:meth:`FlightApp.request_stop`)."""
+        self.flight.request_stop(request, reason)
 
-    def _laser_tap(self, direction: str, t_ns: int, data: bytes) -> None:
-        super()._laser_tap(direction, t_ns, data)
-        if direction == "r":
-            self.feeder.on_read("laser", len(data))
-        elif direction == "w":
-            self.feeder.on_wrote("laser", len(data))
-
-    def mark(self, which: str, kind: str, text: str) -> None:
-        """Record the mark, and tell the feeder the port is open or given up."""
-        super().mark(which, kind, text)
-        if kind == "o":
-            self.feeder.on_open(which)
-        elif kind == "c":
-            self.feeder.on_lost(which)
-
-    async def before_ready(self) -> None:
-        """Wait (on the lock-step clock) until the original flight's READY."""
-        if self._ready_ns is not None:
-            wait_ns = self._ready_ns - self.clock.now_ns()
-            if wait_ns > 0:
-                await asyncio.sleep(wait_ns / NS_PER_S)
-
-    async def before_subscribe(self) -> None:
-        """The MK task's first 'd' goes out when it went out in flight.
-
-        The task started some ms after READY there; a DebugOut sent at once in answer can
-        find the wire still busy with the 'd' and queue, so that the next command replaces
-        it: the frame numbers depend on that time.
-        """
-        if self._subscribe_ns is not None:
-            wait_ns = self._subscribe_ns - self.clock.now_ns()
-            if wait_ns > 0:
-                await asyncio.sleep(wait_ns / NS_PER_S)
-
-    def step(self, sample: ImuSample) -> ImuStepOutput:
-        """A recorded operator stop first, if the original's next step saw one; the step."""
-        while self._step_stops and self._step_stops[0][0] <= self.core.counters.imu_steps:
-            _, request, reason = self._step_stops.pop(0)
-            self.request_stop(request, reason)
-        out = super().step(sample)
-        if (
-            self._intact_end_ns is not None
-            and self.clock.now_ns() <= self._intact_end_ns
-            and self.logs is not None
-        ):
-            for name, writer in (
-                (table4.FILE_NAME, self.logs.t4),
-                (table3.FILE_NAME, self.logs.t3),
-            ):
-                if writer.last_index is not None:
-                    self.rows_at_intact_end[name] = writer.last_index
-        return out
-
-    def _on_signal(self, request: StopRequest, name: str) -> None:
-        """SIGINT/SIGTERM/SIGHUP end the replay (there is no vehicle to land)."""
-        raise KeyboardInterrupt(name)
-
-    def scan_wanted(self, seq: int) -> bool:
-        """A scan the original flight applied (the others it skipped: its matcher was busy)."""
-        return not self._steps or seq in self._steps
-
-    def laser_result_due(self, result: LaserResult, step: int) -> bool:
-        """A recorded scan enters at its recorded step; others at once."""
-        return step >= self._steps.get(result.seq, 0)
+    @property
+    def rows_at_intact_end(self) -> dict[str, int]:
+        """Each table's last row index written by the intact end (a recording cut short)."""
+        return self.policy.rows_at_intact_end
 
     def replay_stats(self) -> dict[str, Any]:
         """How the scans were matched."""

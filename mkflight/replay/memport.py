@@ -2,7 +2,7 @@
 
 ``mkflight replay --fast`` plays the recording through :class:`MemoryDevice` instead of a
 :class:`~mkflight.io.pty.PtyDevice`: the daemon opens its port through
-:meth:`mkflight.flight.app.FlightApp.open_port`, which a replay points here, and gets a
+:meth:`mkflight.flight.policy.FlightPolicy.open_port`, which a replay points here, and gets a
 :class:`MemoryPortStream` - a :class:`~mkflight.io.stream.ByteStream` like a serial port,
 read by the same link, driver and parsers. A pty costs two kernel round trips per
 recorded chunk and a real-time wait for each to surface (the kernel moves pty bytes

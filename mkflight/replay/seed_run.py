@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import msgspec
@@ -115,7 +116,6 @@ class _TakeoffWatch:
     def watch(self, app: ReplayApp) -> None:
         """Watch ``app``'s steps from now on."""
         self.app = app
-        app.on_step = self.on_step
 
     def on_end(self, t_ns: int) -> None:
         """TABLE IV ran out: land and release, as ``--duration`` would."""
@@ -129,10 +129,10 @@ class _TakeoffWatch:
             return
         if self.tables.start_ns is None and out.phase is Phase.TAKEOFF:
             self.tables.start_ns = self.clock.now_ns()
-            self.first_step = app.core.counters.imu_steps + 1
+            self.first_step = app.flight.core.counters.imu_steps + 1
         elif (
             self.tables.start_ns is None
-            and app.stop_request is None
+            and app.flight.stop.request is None
             and self.clock.now_ns() > SEED_START_NS + TAKEOFF_TIMEOUT_NS
         ):
             app.request_stop(
@@ -158,15 +158,31 @@ def _read_tables(folder: Path) -> tuple[npt.NDArray[np.void], npt.NDArray[np.voi
     return imu_data.rows, laser_data.rows, warnings
 
 
-def _seed_app(cfg: Config, feeder: Feeder, clock: VirtualClock, out: Path) -> ReplayApp:
-    """The daemon on the feeder's model ports, its scan matcher to be replaced."""
+def _seed_app(
+    cfg: Config,
+    feeder: Feeder,
+    clock: VirtualClock,
+    out: Path,
+    matcher: SeedMatcher,
+    on_step: Callable[[ImuStepOutput], None],
+) -> ReplayApp:
+    """The daemon on the feeder's model ports, with TABLE III's poses as its matcher."""
     opts = FlightOptions(
         mk_port=feeder.path("mk"),
         laser_port=feeder.path("laser"),
         log_dir=out,
         durable_logs=False,
     )
-    return ReplayApp(cfg, opts, clock=clock, feeder=feeder, scans={}, use_recorded_poses=False)
+    return ReplayApp(
+        cfg,
+        opts,
+        clock=clock,
+        feeder=feeder,
+        scans={},
+        use_recorded_poses=False,
+        matcher=matcher,
+        on_step=on_step,
+    )
 
 
 def replay_seed(
@@ -202,9 +218,8 @@ def replay_seed(
     feeder = Feeder(
         [], clock, link_dir, speed=speed, models={"mk": fc, "laser": urg}, memory=speed is None
     )
-    app = _seed_app(cfg, feeder, clock, out)
     matcher = SeedMatcher(cfg, laser_seed, seed_clock)
-    app.worker = matcher
+    app = _seed_app(cfg, feeder, clock, out, matcher, watch.on_step)
     watch.watch(app)
     cpu0, wall0 = time.process_time(), time.perf_counter()
     report = run_lockstep(app, feeder, clock, link_dir)

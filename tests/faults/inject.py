@@ -2,9 +2,10 @@
 
 ``python -m tests.faults.inject FAULT [--after-hold-s S] -- ARGS...`` runs
 ``mkflight ARGS...`` (the real CLI: argument parsing, exit codes, error lines) in this
-process, with :class:`FaultyApp` standing in for :class:`~mkflight.flight.app.FlightApp`.
-The fault is armed once the flight has held for ``--after-hold-s`` seconds (counted in
-50 ms steps), so it always hits a vehicle in the air. Faults (``FAULTS``):
+process, with :class:`~mkflight.flight.app.FlightApp` built with the fault's seams (its
+policy, notifier, ``on_step`` and ``sample_filter``). The fault is armed once the flight
+has held for ``--after-hold-s`` seconds (counted in 50 ms steps), so it always hits a
+vehicle in the air. Faults (``FAULTS``):
 
 * ``crash-mk-step``, ``crash-laser``, ``crash-watchdog``: an exception inside that task
   (the step; the laser task's per-scan check; the watchdog's status refresh);
@@ -23,8 +24,8 @@ The fault is armed once the flight has held for ``--after-hold-s`` seconds (coun
   (``/dev/full`` put behind its descriptors with ``dup2``: the kernel's own error on the
   real write path);
 
-This module replaces the ``FlightApp`` name in :mod:`mkflight.flight.app` before the CLI
-imports it: a test harness, never part of the product.
+This module replaces the ``FlightApp`` name in :mod:`mkflight.flight.app` by a builder of
+the faulty one before the CLI imports it: a test harness, never part of the product.
 """
 
 from __future__ import annotations
@@ -42,7 +43,11 @@ from typing import Any, Final, Self
 
 import mkflight.flight.app as app_module
 from mkflight.cli import main as mkflight_main
+from mkflight.config import Config
 from mkflight.control.phases import Phase
+from mkflight.flight.app import FlightApp, FlightOptions
+from mkflight.flight.policy import FlightPolicy
+from mkflight.flight.sdnotify import Notifier
 from mkflight.flight.step import ImuStepOutput
 from mkflight.msgs import ImuSample
 
@@ -115,6 +120,7 @@ class _Injector:
             raise RuntimeError(msg)
 
     def sample(self, sample: ImuSample) -> ImuSample:
+        self.crash("mk-step")  # the step's first act
         if not self.armed:
             return sample
         if self.fault in ("nan-estimate", "inf-estimate", "huge-estimate"):
@@ -159,43 +165,44 @@ def shift_wall_clock(offset_s: float) -> None:
             module.datetime = ShiftedDatetime  # type: ignore[attr-defined]
 
 
+class _FaultyPolicy(FlightPolicy):
+    """The live policy, plus crashes in the laser task and in the ports' reader tasks."""
+
+    def __init__(self, injector: _Injector) -> None:
+        self._injector = injector
+
+    def scan_wanted(self, seq: int) -> bool:
+        self._injector.crash("laser")  # the laser task's per-scan check
+        return super().scan_wanted(seq)
+
+    def on_bytes(self, port: str, direction: str, n_bytes: int) -> None:
+        if direction == "r":  # the byte taps run in the link's and the driver's readers
+            self._injector.crash("mk-reader" if port == "mk" else "laser-reader")
+
+
 def install(fault: str, after_hold_s: float) -> _Injector:
-    """Make :mod:`mkflight.flight.app`'s ``FlightApp`` the faulty one; return its injector."""
+    """Make :mod:`mkflight.flight.app`'s ``FlightApp`` build the faulty one; return its injector."""
     injector = _Injector(fault, after_hold_s)
     base = app_module.FlightApp
 
-    class FaultyApp(base):  # type: ignore[valid-type,misc]
-        def __init__(self, *args: Any, **kwargs: Any) -> None:
-            kwargs.setdefault("on_step", injector.on_step)
-            kwargs.setdefault("sample_filter", injector.sample)
-            super().__init__(*args, **kwargs)
-            injector.folder = Path(self.opts.log_dir)
+    class FaultyNotifier(Notifier):
+        def status(self, text: str) -> bool:
+            injector.crash("watchdog")  # the watchdog's status refresh
+            return super().status(text)
 
-        def step(self, sample: ImuSample) -> ImuStepOutput:
-            injector.crash("mk-step")
-            out: ImuStepOutput = super().step(sample)
-            return out
+    def faulty_app(cfg: Config, opts: FlightOptions, **kwargs: Any) -> FlightApp:
+        injector.folder = Path(opts.log_dir)
+        return base(
+            cfg,
+            opts,
+            notifier=FaultyNotifier.from_env(),
+            policy=_FaultyPolicy(injector),
+            on_step=injector.on_step,
+            sample_filter=injector.sample,
+            **kwargs,
+        )
 
-        def scan_wanted(self, seq: int) -> bool:
-            injector.crash("laser")
-            wanted: bool = super().scan_wanted(seq)
-            return wanted
-
-        def show_status(self) -> None:
-            injector.crash("watchdog")
-            super().show_status()
-
-        def _mk_tap(self, direction: str, t_ns: int, data: bytes) -> None:
-            super()._mk_tap(direction, t_ns, data)
-            if direction == "r":
-                injector.crash("mk-reader")
-
-        def _laser_tap(self, direction: str, t_ns: int, data: bytes) -> None:
-            super()._laser_tap(direction, t_ns, data)
-            if direction == "r":
-                injector.crash("laser-reader")
-
-    app_module.FlightApp = FaultyApp  # type: ignore[misc]
+    app_module.FlightApp = faulty_app  # type: ignore[assignment,misc]
     return injector
 
 

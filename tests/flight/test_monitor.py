@@ -28,7 +28,8 @@ def test_precision_equals_numpy_std_and_memory_stays_flat() -> None:
     size_after_first = 0
     for i in range(settle_steps + len(errors)):
         e = errors[i - settle_steps] if i >= settle_steps else (9.0, 9.0, 9.0)  # settling: ignored
-        mon.on_step(t_ns, Phase.HOLD, _estimate(1.0 + e[0], 2.0 + e[1], 0.6 + e[2]), sp, False)
+        est = _estimate(1.0 + e[0], 2.0 + e[1], 0.6 + e[2])
+        mon.on_step(t_ns, Phase.HOLD, est, sp, False, matcher_cpu_s=0.0)
         t_ns += 50_000_000
         if i == settle_steps:
             size_after_first = sys.getsizeof(mon._mean) + sys.getsizeof(mon._m2)

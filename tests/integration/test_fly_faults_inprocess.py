@@ -140,9 +140,9 @@ async def test_a_full_disk_mid_flight_lands_softly(tmp_path: Path) -> None:
     def on_step(out: ImuStepOutput) -> None:
         nonlocal hold_steps
         hold_steps += out.phase is Phase.HOLD
-        if hold_steps == 30 and app is not None and app.logs is not None:
-            app.logs.t4.write_row = full_disk  # type: ignore[method-assign]
-            app.logs.events.write = full_disk  # type: ignore[method-assign]
+        if hold_steps == 30 and app is not None and app.ports.logs is not None:
+            app.ports.logs.t4.write_row = full_disk  # type: ignore[method-assign]
+            app.ports.logs.events.write = full_disk  # type: ignore[method-assign]
 
     try:
         app = FlightApp(

@@ -1,0 +1,56 @@
+"""The byte taps of the daemon's two ports: :class:`PortTaps` (SPEC §6 raw recordings).
+
+Every chunk a link reads or writes goes into its port's raw recording, then to the
+policy (a replay's feeder counts what was consumed). The MK tap also notes when an
+ExternControl frame (``#bb...``) reached the port - the end of a step's command latency
+(SPEC §9) - and when a DebugOut subscription ('d') went out, which makes the FC answer
+at once and restart its period (:class:`~mkflight.flight.stats.StepStats`).
+"""
+
+from __future__ import annotations
+
+from mkflight.clock import Clock
+from mkflight.flight.policy import FlightPolicy
+from mkflight.flight.stats import StepStats
+from mkflight.logs.raw import RawRecorder
+
+
+class PortTaps:
+    """Both ports' taps and 'o'/'c' marks, recorded and told to the policy."""
+
+    __slots__ = ("_clock", "_policy", "_recorders", "_stats", "command_written_ns")
+
+    def __init__(
+        self,
+        mk_raw: RawRecorder,
+        laser_raw: RawRecorder,
+        *,
+        clock: Clock,
+        policy: FlightPolicy,
+        stats: StepStats,
+    ) -> None:
+        self._recorders = {"mk": mk_raw, "laser": laser_raw}
+        self._clock = clock
+        self._policy = policy
+        self._stats = stats
+        #: when the newest ExternControl frame was written to the MK port (0: none yet)
+        self.command_written_ns = 0
+
+    def mk(self, direction: str, t_ns: int, data: bytes) -> None:
+        """The MK port's tap: record, note a command or a subscription written."""
+        self._recorders["mk"](direction, t_ns, data)
+        if direction == "w" and data[1:3] == b"bb":
+            self.command_written_ns = t_ns
+        elif direction == "w" and data[2:3] == b"d":
+            self._stats.on_resubscribe()  # the FC answers at once and restarts its period
+        self._policy.on_bytes("mk", direction, len(data))
+
+    def laser(self, direction: str, t_ns: int, data: bytes) -> None:
+        """The laser port's tap: record."""
+        self._recorders["laser"](direction, t_ns, data)
+        self._policy.on_bytes("laser", direction, len(data))
+
+    def mark(self, port: str, kind: str, text: str) -> None:
+        """An 'o' (opened) or 'c' (lost) record in ``port``'s raw recording."""
+        self._recorders[port].mark(kind, self._clock.now_ns(), text)
+        self._policy.on_mark(port, kind)
