@@ -24,6 +24,7 @@ from mkflight.analysis.precision import (
     precision,
     with_truth,
 )
+from mkflight.commands.args import DOCUMENT, Command, Subparsers, add_json, subcommands
 from mkflight.logs.events import FILE_NAME as EVENTS_FILE
 from mkflight.logs.events import read_events
 from mkflight.logs.table3 import FILE_NAME as TABLE3_FILE
@@ -94,7 +95,7 @@ def cmd_analyze_precision(*, log_dir: str, truth: str | None, as_json: bool) -> 
         print(json.dumps(p.as_dict()))
         return 0
     print(
-        f"hover precision of {folder} (seed §O-P): {p.samples} HOLD steps from "
+        f"hover precision of {folder} (§O-P): {p.samples} HOLD steps from "
         f"{SETTLE_S:g} s after HOLD began, position = {source}, error = position - set-point"
     )
     print(f"{'':28}{'x m':>10}{'y m':>10}{'z m':>10}")
@@ -102,7 +103,7 @@ def cmd_analyze_precision(*, log_dir: str, truth: str | None, as_json: bool) -> 
         vals = [getattr(a, f"{stat}_m") for a in (p.x, p.y, p.z)]
         label = "max |err|" if stat == "max" else stat
         print(f"  this flight  {label:<14}" + "".join(f"{v:10.4f}" for v in vals))
-    print("seed TABLE IX (hovering):")
+    print("TABLE IX (hovering):")
     for row in SEED_TABLE_IX:
         print(f"  {row.name:<18} {row.kind:<7}{row.x_m:10.4f}{row.y_m:10.4f}{row.z_m:10.4f}")
     return 0
@@ -167,7 +168,7 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
         return 0
     print(
         f"response lag of {folder}: {lat.lag_steps} steps = {lat.lag_s * 1000:.0f} ms at "
-        f"{lat.period_s * 1000:.1f} ms a step (the seed, Fig 8: ~{SEED_LAG_STEPS} steps = "
+        f"{lat.period_s * 1000:.1f} ms a step (Fig 8: ~{SEED_LAG_STEPS} steps = "
         f"{SEED_LAG_STEPS * 50} ms)"
     )
     _print_curve("acceleration", lat.acceleration, lat.period_s)
@@ -176,7 +177,7 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
     if lat.velocity is not None:
         _print_curve("velocity", lat.velocity, lat.period_s)
     print("  acceleration: commanded tilt -> laser body acceleration (the response lag)")
-    print("  attitude: -> the FC's angles; velocity: the seed's Fig 8 (adds the integration)")
+    print("  attitude: -> the FC's angles; velocity: Fig 8's curve (adds the integration)")
     if lat.peak_r < WEAK_PEAK_R:
         print(
             f"  weak peak (r = {lat.peak_r:.2f} < {WEAK_PEAK_R}): too little excitation "
@@ -189,3 +190,40 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
         mark = "  <- peak" if k == lat.lag_steps else ""
         print(f"  {k:4d} {k * lat.period_s * 1000:5.0f} {' '.join(r)}{mark}")
     return 0
+
+
+def add_parser(subparsers: Subparsers) -> None:
+    """``analyze precision LOGDIR`` and ``analyze latency LOGDIR``."""
+    analyze = subparsers.add_parser(
+        "analyze",
+        help="hover precision and response lag of a flight folder (§O-P, §F)",
+        description=f"The analyses of {DOCUMENT} on a flight folder: hover precision "
+        "(§O-P, TABLE IX) and response lag (§F, Fig 8).",
+    )
+    analyze_commands = subcommands(analyze, "analyze_command")
+    precision = analyze_commands.add_parser(
+        "precision",
+        help="hover precision (mean, std, RMS, max error) beside TABLE IX",
+        description="Mean, std, RMS and max of the x, y and height error about the set-point "
+        "during HOLD (from 3 s after HOLD begins, as 'sim hover' measures), against the "
+        f"flight's estimate or a 't x y z' truth file (§O-P, TABLE IX of {DOCUMENT}).",
+    )
+    precision.add_argument("log_dir", metavar="LOGDIR", help="the flight folder")
+    precision.add_argument(
+        "--truth", metavar="FILE", help="'t x y z' ground truth (z = height up), e.g. truth.txt"
+    )
+    add_json(precision)
+    precision.set_defaults(func=Command(cmd_analyze_precision))
+    latency = analyze_commands.add_parser(
+        "latency",
+        help="the vehicle's response lag by cross-correlation (§F, Fig 8)",
+        description="Normalised cross-correlation of the commanded pitch (roll) with the "
+        "laser's body-frame acceleration along x (y), i.e. the body velocity differenced, for "
+        "lags 0..20 steps: the peak is the response lag (delay + lag of the attitude loop). "
+        "Also the FC's own angles against the command, and the curve of Fig 8 (§F) of "
+        f"{DOCUMENT} (command against velocity, which adds the integration). Needs "
+        "excitation: a calm hover barely moves ('sim hover --excite 0.2').",
+    )
+    latency.add_argument("log_dir", metavar="LOGDIR", help="the flight folder")
+    add_json(latency)
+    latency.set_defaults(func=Command(cmd_analyze_latency))

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from mkflight.commands.args import DOCUMENT, Command, Subparsers
+
 
 def cmd_plot(*, log_dir: str, out_dir: str | None) -> int:
     """Draw a flight folder's figures as PNG files and print their paths, one a line.
@@ -27,3 +29,19 @@ def cmd_plot(*, log_dir: str, out_dir: str | None) -> int:
         print(path)
     return 0
 
+
+def add_parser(subparsers: Subparsers) -> None:
+    """``plot LOGDIR``."""
+    plot = subparsers.add_parser(
+        "plot",
+        help="draw a flight folder's figures as PNG files (needs the plot extra)",
+        description=f"PNG figures of one flight folder (§O-P, Fig 18/19 of {DOCUMENT}): "
+        "trajectory x-y, position and height with set-points, laser vs filtered velocity, "
+        "commands and sticks, battery. Prints the paths. Needs matplotlib: pip install "
+        "'mkflight[plot]'.",
+    )
+    plot.add_argument("log_dir", metavar="LOGDIR", help="the flight folder")
+    plot.add_argument(
+        "-o", "--out-dir", metavar="DIR", help="where the PNGs go (default: LOGDIR/plots)"
+    )
+    plot.set_defaults(func=Command(cmd_plot))

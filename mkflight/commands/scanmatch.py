@@ -19,6 +19,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from mkflight.commands.args import Command, Subparsers, config_options
 
 
 def cmd_scanmatch(
@@ -91,3 +92,21 @@ def cmd_scanmatch(
     print(summary, file=sys.stderr)
     return 0
 
+
+def add_parser(subparsers: Subparsers) -> None:
+    """``scanmatch LOG``."""
+    match = subparsers.add_parser(
+        "scanmatch",
+        parents=[config_options()],
+        help="run the scan matcher over a recorded laser log",
+        description="Match every scan of a CARMEN log (FLASER/ROBOTLASER1 lines, plain or "
+        ".gz) and write 't x y theta' per scan in the log's own frame (SPEC §7).",
+    )
+    match.add_argument("log", metavar="LOG", help="the laser log")
+    match.add_argument(
+        "--odom", metavar="FILE", help="'t x y theta' odometry whose increments are the prior"
+    )
+    match.add_argument(
+        "-o", "--output", dest="out", metavar="TRAJ", help="write here instead of stdout"
+    )
+    match.set_defaults(func=Command(cmd_scanmatch))
