@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from mkflight.analysis.calibrate import AccFit, CalibrationInputError, fit_acc_scale, parse_rows
 from mkflight.commands.args import DOCUMENT, Command, Subparsers, add_json, subcommands
 from mkflight.errors import ConfigError
+
+if TYPE_CHECKING:
+    from mkflight.analysis.calibrate import AccFit
 
 _KEYS = {"nick": "acc_nick_counts_per_g", "roll": "acc_roll_counts_per_g"}
 #: The documented k of each axis: the table it was measured in, and its value (counts/g).
@@ -34,6 +34,8 @@ def cmd_calibrate_acc(*, file: str, axis: str, as_json: bool, write_config: str 
             rows (exit 1).
         ConfigError: the config file cannot be read, parsed, validated or written (exit 2).
     """
+    from mkflight.analysis.calibrate import CalibrationInputError, fit_acc_scale, parse_rows
+
     if axis not in _KEYS:
         msg = f"axis must be 'nick' or 'roll', got {axis!r}"
         raise ConfigError(msg)
@@ -89,6 +91,9 @@ def _write_k(path: str, key: str, k_counts_per_g: float) -> None:
     preserved. The file is replaced atomically, and only if the result is a valid
     configuration.
     """
+    import os
+    import tempfile
+
     from mkflight.config import config_from_dict, dump_yaml, read_yaml
 
     target = Path(path)
