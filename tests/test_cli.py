@@ -26,9 +26,9 @@ from mkflight.commands.streaming import print_lines
 FEED_NOTHING: Final[dict[tuple[str, ...], set[str]]] = {("replay",): {"fast"}}
 #: What the commands run on, and building the parser must not import (a cost on every call).
 HEAVY: Final = (
-    *("scipy", "matplotlib", "asyncio"),
+    *("numpy", "scipy", "matplotlib", "msgspec", "yaml", "structlog", "asyncio"),
     *("mkflight.flight", "mkflight.sim", "mkflight.replay", "mkflight.scanmatch"),
-    *("mkflight.io", "mkflight.urg"),
+    *("mkflight.io", "mkflight.mk", "mkflight.urg", "mkflight.logs", "mkflight.config"),
 )
 #: What naming the original document as "the seed" looks like.
 SEED_WORDING: Final = re.compile(r"\bthe seed\b|\bseed's|\bseed §|\bseed TABLE|\bseed eq")

@@ -4,37 +4,23 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from mkflight.analysis.latency import (
-    IMU_PERIOD_S,
-    LASER_PERIOD_S,
-    SEED_LAG_STEPS,
-    WEAK_PEAK_R,
-    LagCurve,
-    estimate_latency,
-)
-from mkflight.analysis.precision import (
-    SEED_TABLE_IX,
-    SETTLE_S,
-    AnalysisInputError,
-    hold_samples,
-    parse_truth,
-    precision,
-    with_truth,
-)
 from mkflight.commands.args import DOCUMENT, Command, Subparsers, add_json, subcommands
-from mkflight.logs.events import FILE_NAME as EVENTS_FILE
-from mkflight.logs.events import read_events
-from mkflight.logs.table3 import FILE_NAME as TABLE3_FILE
-from mkflight.logs.table3 import read_table3
-from mkflight.logs.table4 import FILE_NAME as TABLE4_FILE
-from mkflight.logs.table4 import read_table4
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from mkflight.analysis.latency import LagCurve
+
+# The analyses (numpy, the log readers) are imported inside the functions that run them:
+# every mkflight call imports this module to build its parser.
 
 
 def _existing(folder: Path, name: str) -> Path:
     """``folder/name``, checked to exist and not be empty."""
+    from mkflight.analysis.precision import AnalysisInputError
+
     if not folder.is_dir():
         msg = f"{folder}: not a flight folder (no such directory)"
         raise AnalysisInputError(msg)
@@ -49,6 +35,8 @@ def _existing(folder: Path, name: str) -> Path:
 
 
 def _read_text(path: Path) -> str:
+    from mkflight.analysis.precision import AnalysisInputError
+
     try:
         return path.read_text(encoding="utf-8")
     except OSError as err:
@@ -74,6 +62,18 @@ def cmd_analyze_precision(*, log_dir: str, truth: str | None, as_json: bool) -> 
             line), or no HOLD samples (exit 1).
         ReplayError: a malformed events line (file and line; exit 1).
     """
+    from mkflight.analysis.precision import (
+        SEED_TABLE_IX,
+        SETTLE_S,
+        AnalysisInputError,
+        hold_samples,
+        parse_truth,
+        precision,
+        with_truth,
+    )
+    from mkflight.logs.events import FILE_NAME as EVENTS_FILE
+    from mkflight.logs.events import read_events
+
     folder = Path(log_dir)
     events = read_events(_existing(folder, EVENTS_FILE))
     samples = hold_samples(events.events)
@@ -111,6 +111,11 @@ def cmd_analyze_precision(*, log_dir: str, truth: str | None, as_json: bool) -> 
 
 def _event_times_s(folder: Path, event: str, rows: int) -> np.ndarray | None:
     """The ``event`` events' times (s), if the events log has exactly one per table row."""
+    import numpy as np
+
+    from mkflight.logs.events import FILE_NAME as EVENTS_FILE
+    from mkflight.logs.events import read_events
+
     path = folder / EVENTS_FILE
     if not path.is_file() or path.stat().st_size == 0:
         return None
@@ -140,6 +145,21 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
         AnalysisInputError: a missing or empty log, or no correlation (exit 1).
         ReplayError: a malformed table row (file and line; exit 1).
     """
+    import numpy as np
+
+    from mkflight.analysis.latency import (
+        IMU_PERIOD_S,
+        LASER_PERIOD_S,
+        SEED_LAG_STEPS,
+        WEAK_PEAK_R,
+        estimate_latency,
+    )
+    from mkflight.analysis.precision import AnalysisInputError
+    from mkflight.logs.table3 import FILE_NAME as TABLE3_FILE
+    from mkflight.logs.table3 import read_table3
+    from mkflight.logs.table4 import FILE_NAME as TABLE4_FILE
+    from mkflight.logs.table4 import read_table4
+
     folder = Path(log_dir)
     t4 = read_table4(_existing(folder, TABLE4_FILE)).rows
     t3 = read_table3(_existing(folder, TABLE3_FILE)).rows
