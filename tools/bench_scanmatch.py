@@ -26,9 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from mkflight.commands.scanmatch import read_trajectory, track_records
 from mkflight.conversions import MS_PER_S
 from mkflight.scanmatch import KeyframeMatcher, read_carmen, scan_to_points
+from mkflight.scanmatch.log_tracking import track_records
+from mkflight.scanmatch.trajectory import read_trajectory
 from mkflight.sim.room import random_room, raycast
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"

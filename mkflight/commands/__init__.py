@@ -1,1 +1,1 @@
-"""Command implementations: one typed ``cmd_*() -> int`` per CLI subcommand."""
+"""The CLI's commands: per group an ``add_parser``, per subcommand a typed ``cmd_*() -> int``."""

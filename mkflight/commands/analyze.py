@@ -4,37 +4,24 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from mkflight.analysis.latency import (
-    IMU_PERIOD_S,
-    LASER_PERIOD_S,
-    SEED_LAG_STEPS,
-    WEAK_PEAK_R,
-    LagCurve,
-    estimate_latency,
-)
-from mkflight.analysis.precision import (
-    SEED_TABLE_IX,
-    SETTLE_S,
-    AnalysisInputError,
-    hold_samples,
-    parse_truth,
-    precision,
-    with_truth,
-)
+from mkflight.commands.args import DOCUMENT, Command, Subparsers, add_json, subcommands
 from mkflight.conversions import MS_PER_S, NS_PER_S
-from mkflight.logs.events import FILE_NAME as EVENTS_FILE
-from mkflight.logs.events import read_events
-from mkflight.logs.table3 import FILE_NAME as TABLE3_FILE
-from mkflight.logs.table3 import read_table3
-from mkflight.logs.table4 import FILE_NAME as TABLE4_FILE
-from mkflight.logs.table4 import read_table4
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from mkflight.analysis.latency import LagCurve
+
+# The analyses (numpy, the log readers) are imported inside the functions that run them:
+# every mkflight call imports this module to build its parser.
 
 
 def _existing(folder: Path, name: str) -> Path:
     """``folder/name``, checked to exist and not be empty."""
+    from mkflight.analysis.precision import AnalysisInputError
+
     if not folder.is_dir():
         msg = f"{folder}: not a flight folder (no such directory)"
         raise AnalysisInputError(msg)
@@ -49,6 +36,8 @@ def _existing(folder: Path, name: str) -> Path:
 
 
 def _read_text(path: Path) -> str:
+    from mkflight.analysis.precision import AnalysisInputError
+
     try:
         return path.read_text(encoding="utf-8")
     except OSError as err:
@@ -74,6 +63,18 @@ def cmd_analyze_precision(*, log_dir: str, truth: str | None, as_json: bool) -> 
             line), or no HOLD samples (exit 1).
         ReplayError: a malformed events line (file and line; exit 1).
     """
+    from mkflight.analysis.precision import (
+        SEED_TABLE_IX,
+        SETTLE_S,
+        AnalysisInputError,
+        hold_samples,
+        parse_truth,
+        precision,
+        with_truth,
+    )
+    from mkflight.logs.events import FILE_NAME as EVENTS_FILE
+    from mkflight.logs.events import read_events
+
     folder = Path(log_dir)
     events = read_events(_existing(folder, EVENTS_FILE))
     samples = hold_samples(events.events)
@@ -95,7 +96,7 @@ def cmd_analyze_precision(*, log_dir: str, truth: str | None, as_json: bool) -> 
         print(json.dumps(p.as_dict()))
         return 0
     print(
-        f"hover precision of {folder} (seed §O-P): {p.samples} HOLD steps from "
+        f"hover precision of {folder} (§O-P): {p.samples} HOLD steps from "
         f"{SETTLE_S:g} s after HOLD began, position = {source}, error = position - set-point"
     )
     print(f"{'':28}{'x m':>10}{'y m':>10}{'z m':>10}")
@@ -103,7 +104,7 @@ def cmd_analyze_precision(*, log_dir: str, truth: str | None, as_json: bool) -> 
         vals = [getattr(a, f"{stat}_m") for a in (p.x, p.y, p.z)]
         label = "max |err|" if stat == "max" else stat
         print(f"  this flight  {label:<14}" + "".join(f"{v:10.4f}" for v in vals))
-    print("seed TABLE IX (hovering):")
+    print("TABLE IX (hovering):")
     for row in SEED_TABLE_IX:
         print(f"  {row.name:<18} {row.kind:<7}{row.x_m:10.4f}{row.y_m:10.4f}{row.z_m:10.4f}")
     return 0
@@ -111,6 +112,11 @@ def cmd_analyze_precision(*, log_dir: str, truth: str | None, as_json: bool) -> 
 
 def _event_times_s(folder: Path, event: str, rows: int) -> np.ndarray | None:
     """The ``event`` events' times (s), if the events log has exactly one per table row."""
+    import numpy as np
+
+    from mkflight.logs.events import FILE_NAME as EVENTS_FILE
+    from mkflight.logs.events import read_events
+
     path = folder / EVENTS_FILE
     if not path.is_file() or path.stat().st_size == 0:
         return None
@@ -141,6 +147,21 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
         AnalysisInputError: a missing or empty log, or no correlation (exit 1).
         ReplayError: a malformed table row (file and line; exit 1).
     """
+    import numpy as np
+
+    from mkflight.analysis.latency import (
+        IMU_PERIOD_S,
+        LASER_PERIOD_S,
+        SEED_LAG_STEPS,
+        WEAK_PEAK_R,
+        estimate_latency,
+    )
+    from mkflight.analysis.precision import AnalysisInputError
+    from mkflight.logs.table3 import FILE_NAME as TABLE3_FILE
+    from mkflight.logs.table3 import read_table3
+    from mkflight.logs.table4 import FILE_NAME as TABLE4_FILE
+    from mkflight.logs.table4 import read_table4
+
     folder = Path(log_dir)
     t4 = read_table4(_existing(folder, TABLE4_FILE)).rows
     t3 = read_table3(_existing(folder, TABLE3_FILE)).rows
@@ -169,7 +190,7 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
         return 0
     print(
         f"response lag of {folder}: {lat.lag_steps} steps = {lat.lag_s * MS_PER_S:.0f} ms at "
-        f"{lat.period_s * MS_PER_S:.1f} ms a step (the seed, Fig 8: ~{SEED_LAG_STEPS} steps = "
+        f"{lat.period_s * MS_PER_S:.1f} ms a step (Fig 8: ~{SEED_LAG_STEPS} steps = "
         f"{SEED_LAG_STEPS * 50} ms)"
     )
     _print_curve("acceleration", lat.acceleration, lat.period_s)
@@ -178,7 +199,7 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
     if lat.velocity is not None:
         _print_curve("velocity", lat.velocity, lat.period_s)
     print("  acceleration: commanded tilt -> laser body acceleration (the response lag)")
-    print("  attitude: -> the FC's angles; velocity: the seed's Fig 8 (adds the integration)")
+    print("  attitude: -> the FC's angles; velocity: Fig 8's curve (adds the integration)")
     if lat.peak_r < WEAK_PEAK_R:
         print(
             f"  weak peak (r = {lat.peak_r:.2f} < {WEAK_PEAK_R}): too little excitation "
@@ -191,3 +212,40 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
         mark = "  <- peak" if k == lat.lag_steps else ""
         print(f"  {k:4d} {k * lat.period_s * MS_PER_S:5.0f} {' '.join(r)}{mark}")
     return 0
+
+
+def add_parser(subparsers: Subparsers) -> None:
+    """``analyze precision LOGDIR`` and ``analyze latency LOGDIR``."""
+    analyze = subparsers.add_parser(
+        "analyze",
+        help="hover precision and response lag of a flight folder (§O-P, §F)",
+        description=f"The analyses of {DOCUMENT} on a flight folder: hover precision "
+        "(§O-P, TABLE IX) and response lag (§F, Fig 8).",
+    )
+    analyze_commands = subcommands(analyze, "analyze_command")
+    precision = analyze_commands.add_parser(
+        "precision",
+        help="hover precision (mean, std, RMS, max error) beside TABLE IX",
+        description="Mean, std, RMS and max of the x, y and height error about the set-point "
+        "during HOLD (from 3 s after HOLD begins, as 'sim hover' measures), against the "
+        f"flight's estimate or a 't x y z' truth file (§O-P, TABLE IX of {DOCUMENT}).",
+    )
+    precision.add_argument("log_dir", metavar="LOGDIR", help="the flight folder")
+    precision.add_argument(
+        "--truth", metavar="FILE", help="'t x y z' ground truth (z = height up), e.g. truth.txt"
+    )
+    add_json(precision)
+    precision.set_defaults(func=Command(cmd_analyze_precision))
+    latency = analyze_commands.add_parser(
+        "latency",
+        help="the vehicle's response lag by cross-correlation (§F, Fig 8)",
+        description="Normalised cross-correlation of the commanded pitch (roll) with the "
+        "laser's body-frame acceleration along x (y), i.e. the body velocity differenced, for "
+        "lags 0..20 steps: the peak is the response lag (delay + lag of the attitude loop). "
+        "Also the FC's own angles against the command, and the curve of Fig 8 (§F) of "
+        f"{DOCUMENT} (command against velocity, which adds the integration). Needs "
+        "excitation: a calm hover barely moves ('sim hover --excite 0.2').",
+    )
+    latency.add_argument("log_dir", metavar="LOGDIR", help="the flight folder")
+    add_json(latency)
+    latency.set_defaults(func=Command(cmd_analyze_latency))

@@ -1,23 +1,24 @@
-"""``mkflight calibrate acc``: the accelerometer scale factor from a tilt table (seed §D)."""
+"""``mkflight calibrate acc``: the accelerometer scale factor from a tilt table (§D)."""
 
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from mkflight.analysis.calibrate import AccFit, CalibrationInputError, fit_acc_scale, parse_rows
-from mkflight.config import config_from_dict, dump_yaml, read_yaml
+from mkflight.commands.args import DOCUMENT, Command, Subparsers, add_json, subcommands
 from mkflight.errors import ConfigError
 
+if TYPE_CHECKING:
+    from mkflight.analysis.calibrate import AccFit
+
 _KEYS = {"nick": "acc_nick_counts_per_g", "roll": "acc_roll_counts_per_g"}
-_SEED_K = {"nick": "606.3 (TABLE I)", "roll": "603.44 (TABLE II)"}
+#: The documented k of each axis: the table it was measured in, and its value (counts/g).
+_DOCUMENTED_K = {"nick": ("TABLE I", "606.3"), "roll": ("TABLE II", "603.44")}
 
 
 def cmd_calibrate_acc(*, file: str, axis: str, as_json: bool, write_config: str | None) -> int:
-    """Fit ``counts = -k·sin(angle)`` (seed eq 7) to FILE and print k, residual and errors.
+    """Fit ``counts = -k·sin(angle)`` (eq 7) to FILE and print k, residual and errors.
 
     Args:
         file: the table of ``angle_deg counts`` rows (format: :mod:`mkflight.analysis.calibrate`).
@@ -33,6 +34,8 @@ def cmd_calibrate_acc(*, file: str, axis: str, as_json: bool, write_config: str 
             rows (exit 1).
         ConfigError: the config file cannot be read, parsed, validated or written (exit 2).
     """
+    from mkflight.analysis.calibrate import CalibrationInputError, fit_acc_scale, parse_rows
+
     if axis not in _KEYS:
         msg = f"axis must be 'nick' or 'roll', got {axis!r}"
         raise ConfigError(msg)
@@ -65,9 +68,10 @@ def cmd_calibrate_acc(*, file: str, axis: str, as_json: bool, write_config: str 
 
 
 def _print_fit(fit: AccFit, axis: str, file: str) -> None:
+    table, k = _DOCUMENTED_K[axis]
     print(
         f"acc {axis}: k = {fit.k_counts_per_g:.3f} counts/g  "
-        f"(seed {_SEED_K[axis]}; model counts = -k*sin(angle), eq 7)"
+        f"({table}: {k}; model counts = -k*sin(angle), eq 7)"
     )
     print(f"residual RMS {fit.residual_rms_counts:.2f} counts over {len(fit.rows)} rows of {file}")
     print(f"{'line':>6} {'angle_deg':>10} {'counts':>10} {'fit':>10} {'error':>8}")
@@ -87,6 +91,11 @@ def _write_k(path: str, key: str, k_counts_per_g: float) -> None:
     preserved. The file is replaced atomically, and only if the result is a valid
     configuration.
     """
+    import os
+    import tempfile
+
+    from mkflight.config import config_from_dict, dump_yaml, read_yaml
+
     target = Path(path)
     data: dict[str, Any] = read_yaml(path) if target.exists() else {}
     mk = data.setdefault("mk", {})
@@ -107,3 +116,29 @@ def _write_k(path: str, key: str, k_counts_per_g: float) -> None:
             Path(tmp).unlink(missing_ok=True)
         msg = f"{path}: cannot write config file: {err.strerror or err}"
         raise ConfigError(msg) from err
+
+
+def add_parser(subparsers: Subparsers) -> None:
+    """``calibrate acc FILE``."""
+    calibrate = subparsers.add_parser("calibrate", help="calibrations from measurements")
+    acc = subcommands(calibrate, "calibrate_command").add_parser(
+        "acc",
+        help="fit the accelerometer scale k (counts/g) to a tilt table",
+        description="Least-squares fit of counts = -k*sin(angle) (eq 7, §D and TABLE I/II "
+        f"of {DOCUMENT}) to rows of 'angle_deg counts' (spaces, tabs or a comma; optional "
+        "header; # comments); prints k, the residual RMS and each row's error.",
+    )
+    acc.add_argument("file", metavar="FILE", help="the table: one 'angle_deg counts' row a line")
+    acc.add_argument(
+        "--axis",
+        choices=("nick", "roll"),
+        default="nick",
+        help="nick (pitch, TABLE I) or roll (TABLE II): the config key to write (default nick)",
+    )
+    add_json(acc)
+    acc.add_argument(
+        "--write-config",
+        metavar="F",
+        help="set mk.acc_<axis>_counts_per_g in the YAML file F (comments are not kept)",
+    )
+    acc.set_defaults(func=Command(cmd_calibrate_acc))

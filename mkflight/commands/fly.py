@@ -2,17 +2,18 @@
 
 from __future__ import annotations
 
-import asyncio
 import json
 import os
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from mkflight.config import Config, load_config
+from mkflight.commands.args import Command, Subparsers, add_json, add_ports, config_options
 from mkflight.errors import ConfigError, FlightError, MkflightError, PortNotFoundError
-from mkflight.flight.flight_logs import TRUTH_FILE, folder_in_use
-from mkflight.logs.flight_json import json_safe
+
+if TYPE_CHECKING:
+    from mkflight.config import Config
 
 
 def _folder(cfg: Config, log_dir: str | None) -> Path:
@@ -26,6 +27,8 @@ def _folder(cfg: Config, log_dir: str | None) -> Path:
         ConfigError: the path is not a folder (a file, a dangling symlink), cannot be
             listed, or holds something.
     """
+    from mkflight.flight.flight_logs import folder_in_use
+
     stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
     folder = Path(log_dir) if log_dir else Path(cfg.logging.dir) / f"flight-{stamp}"
     if os.path.lexists(folder) and not folder.is_dir():
@@ -51,6 +54,7 @@ def _truth_precision(folder: Path) -> dict[str, float | int] | None:
         with_truth,
     )
     from mkflight.analysis.precision import precision as measure
+    from mkflight.flight.flight_logs import TRUTH_FILE
     from mkflight.logs.events import read_events
 
     truth = folder / TRUTH_FILE
@@ -70,6 +74,21 @@ def _truth_precision(folder: Path) -> dict[str, float | int] | None:
     }
 
 
+def _check_ports(mk_port: str | None, laser_port: str | None) -> None:
+    """Both ports given exist (a missing device is a usage error, exit 2).
+
+    Raises:
+        PortNotFoundError: naming the device, the port and where it came from.
+    """
+    for what, flag, port in (
+        ("FC", "mk.port or --mk-port", mk_port),
+        ("laser", "laser.port or --laser-port", laser_port),
+    ):
+        if port is not None and not Path(port).exists():
+            msg = f"{what} port {port} ({flag}): no such device"
+            raise PortNotFoundError(msg)
+
+
 async def _fly(
     cfg: Config,
     *,
@@ -83,6 +102,7 @@ async def _fly(
     overrides: list[str],
 ) -> tuple[int, str, dict[str, object]]:
     from mkflight.flight.app import FlightApp, FlightOptions
+    from mkflight.flight.flight_logs import TRUTH_FILE
     from mkflight.flight.sim_process import SimProcess, start_sim
 
     child: SimProcess | None = None
@@ -165,6 +185,11 @@ def cmd_fly(
         ConfigError: a usage error (no ``--hover``, missing ports, a non-empty log dir).
         FlightError: the flight failed (exit 1, after the soft landing and release).
     """
+    import asyncio
+
+    from mkflight.config import load_config
+    from mkflight.logs.flight_json import json_safe
+
     if not hover:
         msg = "fly needs a mission: --hover (the only one so far)"
         raise ConfigError(msg)
@@ -180,13 +205,7 @@ def cmd_fly(
         msg = f"--height {height_m:g} m is above safety.max_height_m {cfg.safety.max_height_m:g}"
         raise ConfigError(msg)
     if not sim:
-        for what, flag, port in (
-            ("FC", "mk.port or --mk-port", mk_port),
-            ("laser", "laser.port or --laser-port", laser_port),
-        ):
-            if port is not None and not Path(port).exists():
-                msg = f"{what} port {port} ({flag}): no such device"
-                raise PortNotFoundError(msg)
+        _check_ports(mk_port, laser_port)
     if height_m is not None:  # in the config flown, so flight.json (and a replay) has it
         try:
             cfg = load_config(config_path, [*overrides, f"control.takeoff_height_m={height_m}"])
@@ -222,3 +241,37 @@ def cmd_fly(
     if code != 0:
         raise FlightError(reason)
     return 0
+
+
+def add_parser(subparsers: Subparsers) -> None:
+    """``fly``: the flight daemon."""
+    fly = subparsers.add_parser(
+        "fly",
+        parents=[config_options()],
+        help="fly: pre-flight checks, take-off, hold, soft landing, release",
+        description="The flight daemon (SPEC §7): pre-flight checks (FC version and "
+        "DebugOut rate, level, battery, laser info and scan rate, hat height on the ground, "
+        "scan match), the neutral handshake, take-off to --height, hold at the take-off "
+        "x, y, psi, and a soft landing and release on SIGINT/SIGTERM, --duration or a "
+        "failsafe. Writes a flight folder (TABLE III/IV, events.jsonl, flight.json, raw "
+        "recordings of both ports). Exit 0 after a landing, 1 on a failure (after the "
+        "landing and release), 2 on bad usage.",
+    )
+    fly.add_argument("--hover", action="store_true", help="the mission: hold position")
+    fly.add_argument(
+        "--sim", action="store_true", help="fly the simulated vehicle (its own process, ptys)"
+    )
+    add_ports(fly, "mk", "laser")
+    fly.add_argument(
+        "--height", dest="height_m", type=float, metavar="M", help="hover height (default 0.6)"
+    )
+    fly.add_argument(
+        "--duration",
+        dest="duration_s",
+        type=float,
+        metavar="S",
+        help="land this long after the checks",
+    )
+    fly.add_argument("--log-dir", metavar="DIR", help="flight folder (default: new, dated)")
+    add_json(fly, "the summary as one JSON object")
+    fly.set_defaults(func=Command(cmd_fly))

@@ -11,24 +11,26 @@ gives none.
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
-import functools
 import json
 import math
-import time
-from collections.abc import AsyncIterator
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from mkflight.commands.interrupt import next_or_stop, stop_on_signals
-from mkflight.config import Config, load_config
+from mkflight.commands.args import (
+    Command,
+    Subparsers,
+    add_count,
+    add_json,
+    add_port_or_sim,
+    config_options,
+    subcommands,
+)
 from mkflight.conversions import NS_PER_S
-from mkflight.io.serial import open_serial
-from mkflight.msgs import Scan
-from mkflight.urg.driver import UrgDriver
-from mkflight.urg.hat import HatSettings, hat_height
-from mkflight.urg.units import SensorParams, step_body_angle_rad
+
+if TYPE_CHECKING:
+    from mkflight.config import Config
+    from mkflight.msgs import Scan
+    from mkflight.sim.urg_server import UrgEmulator
+    from mkflight.urg.units import SensorParams
 
 URG_BAUDRATE = 115200  # USB CDC-ACM ignores it (scip2.md §1)
 #: The simulated room of ``--sim``: 6 x 5 m with a box and a cabinet (x_min y_min x_max y_max).
@@ -39,6 +41,11 @@ def scan_row(
     scan: Scan, params: SensorParams, cfg: Config, t0_ns: int
 ) -> tuple[dict[str, object], list[float | None]]:
     """One scan as the ``--json`` object (see the module docstring), and its ranges."""
+    import numpy as np
+
+    from mkflight.urg.hat import HatSettings, hat_height
+    from mkflight.urg.units import step_body_angle_rad
+
     laser = cfg.laser
     steps = np.arange(scan.first_step, scan.first_step + scan.ranges_m.size)
     lo, hi = laser.scan_steps
@@ -74,13 +81,10 @@ def _summary_line(row: dict[str, object], ranges: list[float | None]) -> str:
     )
 
 
-@contextlib.asynccontextmanager
-async def _port(port: str | None, sim: bool, cfg: Config) -> AsyncIterator[str]:
-    """Yield the device path: ``port`` itself, or a running URG emulator's pty."""
-    if not sim:
-        assert port is not None
-        yield port
-        return
+def _emulator(cfg: Config) -> UrgEmulator:
+    """The URG emulator of ``--sim``: the sensor on the floor of :data:`DEMO_OBSTACLES`' room."""
+    import functools
+
     from mkflight.sim.room import box_room, raycast
     from mkflight.sim.urg_scene import RoomScene, ScenePose
     from mkflight.sim.urg_server import UrgEmulator
@@ -91,14 +95,20 @@ async def _port(port: str | None, sim: bool, cfg: Config) -> AsyncIterator[str]:
         pose=ScenePose(x_m=0.0, y_m=0.0, yaw_rad=0.0, height_m=0.0),
         seed=cfg.sim.seed,
     )
-    async with UrgEmulator(scene) as emulator:
-        yield emulator.path
+    return UrgEmulator(scene)
 
 
 async def _laser_scan(port: str | None, sim: bool, count: int, as_json: bool, cfg: Config) -> int:
+    import time
+
+    from mkflight.commands.interrupt import stop_on_signals
+    from mkflight.commands.streaming import device_path, print_lines
+    from mkflight.io.serial import open_serial
+    from mkflight.urg.driver import UrgDriver
+
     stop = stop_on_signals()
     t0_ns = time.monotonic_ns()
-    async with _port(port, sim, cfg) as path:
+    async with device_path(port, (lambda: _emulator(cfg)) if sim else None) as path:
         stream = await open_serial(path, URG_BAUDRATE)
         async with UrgDriver(stream, cfg.laser) as driver:
             info = await driver.connect()
@@ -106,14 +116,13 @@ async def _laser_scan(port: str | None, sim: bool, count: int, as_json: bool, cf
                 print(f"{info.summary} on {path}")
                 print(f"{'t_s':>8} {'valid':>11} {'min_m':>8} {'front_m':>8} {'height_m':>8}")
             await driver.start_stream()
-            printed = 0
-            while count == 0 or printed < count:
-                scan = await next_or_stop(driver.next_scan(timeout_s=2.0), stop)
-                if scan is None:
-                    break
+
+            async def next_line() -> str:
+                scan = await driver.next_scan(timeout_s=2.0)
                 row, ranges = scan_row(scan, driver.params, cfg, t0_ns)
-                print(json.dumps(row) if as_json else _summary_line(row, ranges), flush=True)
-                printed += 1
+                return json.dumps(row) if as_json else _summary_line(row, ranges)
+
+            await print_lines(next_line, count, stop)
     return 0
 
 
@@ -127,5 +136,25 @@ def cmd_laser_scan(
     overrides: list[str],
 ) -> int:
     """Print the sensor's identity and ``count`` scans (0: until interrupted)."""
+    import asyncio
+
+    from mkflight.config import load_config
+
     cfg = load_config(config_path, overrides)
     return asyncio.run(_laser_scan(port, sim, count, as_json, cfg))
+
+
+def add_parser(subparsers: Subparsers) -> None:
+    """``laser scan``: the URG group and its one command."""
+    laser = subparsers.add_parser("laser", help="the Hokuyo URG laser")
+    scan = subcommands(laser, "laser_command").add_parser(
+        "scan",
+        parents=[config_options()],
+        help="print the sensor's identity and scans with the hat's height",
+        description="Start the URG (SCIP 2.0), print its identity, then N scans: the scan "
+        "steps' ranges and the height from the laser hat (SPEC §7).",
+    )
+    add_port_or_sim(scan, "laser")
+    add_count(scan, default=5, items="scans")
+    add_json(scan, "one JSON object per scan and line")
+    scan.set_defaults(func=Command(cmd_laser_scan))

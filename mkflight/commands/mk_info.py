@@ -6,22 +6,26 @@ left under extern control by a crashed program is handed back to the pilot.
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import json
 import math
 import sys
-from collections.abc import AsyncIterator
+from typing import TYPE_CHECKING
 
-from mkflight.clock import MonotonicClock
-from mkflight.commands.interrupt import next_or_stop, stop_on_signals
-from mkflight.config import Config, load_config
+from mkflight.commands.args import (
+    Command,
+    Subparsers,
+    add_count,
+    add_json,
+    add_port_or_sim,
+    config_options,
+    subcommands,
+)
 from mkflight.conversions import NS_PER_S
-from mkflight.errors import LinkError
-from mkflight.io.serial import open_serial
-from mkflight.mk.link import LinkSettings, MkLink
-from mkflight.mk.units import MkCalibration
-from mkflight.msgs import ImuSample
+
+if TYPE_CHECKING:
+    from mkflight.config import Config
+    from mkflight.msgs import ImuSample
+    from mkflight.sim.fc_server import FcEmulator
 
 #: The keys of one ``--json`` line (SPEC §7), in order.
 JSON_KEYS = (
@@ -77,27 +81,29 @@ def _format_row(row: dict[str, float | None]) -> str:
     )
 
 
-@contextlib.asynccontextmanager
-async def _port(port: str | None, sim: bool, cfg: Config) -> AsyncIterator[str]:
-    """Yield the device path: ``port`` itself, or a running emulator's pty."""
-    if not sim:
-        assert port is not None
-        yield port
-        return
+def _emulator(cfg: Config) -> FcEmulator:
+    """The FC emulator of ``--sim``: a vehicle resting on the ground, seeded by ``sim.seed``."""
     from mkflight.sim.airframe import airframe_from_config
     from mkflight.sim.fc_server import FcEmulator
     from mkflight.sim.sources import RestingVehicleSource
 
     source = RestingVehicleSource(airframe_from_config(cfg.sim), seed=cfg.sim.seed)
-    async with FcEmulator(cfg.sim.fc, source) as emulator:
-        yield emulator.path
+    return FcEmulator(cfg.sim.fc, source)
 
 
 async def _mk_info(port: str | None, sim: bool, count: int, as_json: bool, cfg: Config) -> int:
+    from mkflight.clock import MonotonicClock
+    from mkflight.commands.interrupt import stop_on_signals
+    from mkflight.commands.streaming import device_path, print_lines
+    from mkflight.errors import LinkError
+    from mkflight.io.serial import open_serial
+    from mkflight.mk.link import LinkSettings, MkLink
+    from mkflight.mk.units import MkCalibration
+
     stop = stop_on_signals()
     clock = MonotonicClock()
     t0_ns = clock.now_ns()
-    async with _port(port, sim, cfg) as path:
+    async with device_path(port, (lambda: _emulator(cfg)) if sim else None) as path:
         stream = await open_serial(path, cfg.mk.baudrate)
         link = MkLink(
             stream, LinkSettings.from_config(cfg), MkCalibration.from_config(cfg.mk), clock
@@ -112,11 +118,11 @@ async def _mk_info(port: str | None, sim: bool, count: int, as_json: bool, cfg: 
                 )
                 print(_HEADER)
             link.subscribe()
-            printed = 0
             timeout_s = cfg.mk.answer_timeout_s
-            while count == 0 or printed < count:
+
+            async def next_line() -> str:
                 try:
-                    sample = await next_or_stop(link.next_sample(timeout_s), stop)
+                    sample = await link.next_sample(timeout_s)
                 except LinkError as err:
                     if link.stats.samples == 0 and link.error is None:
                         msg = (
@@ -125,12 +131,10 @@ async def _mk_info(port: str | None, sim: bool, count: int, as_json: bool, cfg: 
                         )
                         raise LinkError(msg) from err
                     raise
-                if sample is None:
-                    break
                 row = sample_row(sample, t0_ns)
-                line = json.dumps(row) if as_json else _format_row(row)
-                print(line, flush=True)
-                printed += 1
+                return json.dumps(row) if as_json else _format_row(row)
+
+            await print_lines(next_line, count, stop)
     s = link.stats
     if not as_json and (s.parser.crc_errors or s.parser.discarded_bytes):
         print(
@@ -150,5 +154,25 @@ def cmd_mk_info(
     overrides: list[str],
 ) -> int:
     """Print the FC version and ``count`` DebugOut samples (0: until interrupted)."""
+    import asyncio
+
+    from mkflight.config import load_config
+
     cfg = load_config(config_path, overrides)
     return asyncio.run(_mk_info(port, sim, count, as_json, cfg))
+
+
+def add_parser(subparsers: Subparsers) -> None:
+    """``mk info``: the FlightCtrl group and its one command."""
+    mk = subparsers.add_parser("mk", help="the MikroKopter FlightCtrl link")
+    info = subcommands(mk, "mk_command").add_parser(
+        "info",
+        parents=[config_options()],
+        help="print the FC version and DebugOut samples in SI units",
+        description="Connect to a FlightCtrl, print its version, then N DebugOut samples "
+        "converted to SI units (SPEC §1). Takes no control: on exit it sends Config = 0.",
+    )
+    add_port_or_sim(info, "mk")
+    add_count(info, default=10, items="samples")
+    add_json(info, "one JSON object per sample and line")
+    info.set_defaults(func=Command(cmd_mk_info))

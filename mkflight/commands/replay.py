@@ -4,12 +4,13 @@ Prints what the replay found: the determinism check (ExternControl frames and ta
 against the original's; the first difference with its time and both frames) or, with
 ``--set``, how the commands differ; the pace reached; and every warning about the input
 (a truncated recording is replayed as far as it is readable). Exit 0 when the replay ran
-and, without ``--set``, reproduced the original exactly (a folder of the seed's two
-tables: when it ran); 1 when it did not, or when the input cannot be replayed (the file
+and, without ``--set``, reproduced the original exactly (a folder of the original
+system's two tables: when it ran); 1 when it did not, or when the input cannot be replayed (the file
 and byte offset named); 2 on bad usage (a bad ``--set``, an ``--out`` in use).
 
-A folder with only the seed's TABLE III and IV is replayed as :mod:`mkflight.replay.seed`
-describes, and the report sets each column of the replay's tables beside the seed's.
+A folder with only the original system's TABLE III and IV is replayed as
+:mod:`mkflight.replay.seed` describes, and the report sets each column of the replay's
+tables beside the original's.
 """
 
 from __future__ import annotations
@@ -17,18 +18,16 @@ from __future__ import annotations
 import json
 import sys
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from mkflight.cli_types import printable
-from mkflight.commands.progress import tty_bar
+from mkflight.cli_types import positive, printable
+from mkflight.commands.args import Command, Subparsers, add_json
 from mkflight.conversions import NS_PER_S
 from mkflight.errors import ReplayError
-from mkflight.logs.flight_json import json_safe
-from mkflight.mk.codec import FrameParser
-from mkflight.mk.messages import ExternControl
-from mkflight.replay.compare import CommandComparison
-from mkflight.replay.report import ReplayReport
-from mkflight.replay.run import replay_flight
+
+if TYPE_CHECKING:
+    from mkflight.replay.compare import CommandComparison
+    from mkflight.replay.report import ReplayReport
 
 
 def _updater(bar: Any) -> Callable[[int, int], None] | None:
@@ -45,6 +44,9 @@ def _updater(bar: Any) -> Callable[[int, int], None] | None:
 
 
 def _decoded(wire: bytes | None) -> str:
+    from mkflight.mk.codec import FrameParser
+    from mkflight.mk.messages import ExternControl
+
     if wire is None:
         return "(none)"
     frames = [f for f in FrameParser().feed(wire) if f.cmd == "b"]
@@ -89,7 +91,7 @@ def _seed_lines(r: ReplayReport) -> list[str]:
     if s is None:
         return []
     lines = [
-        f"seed tables: {s.imu_rows_played} of {s.imu_rows} TABLE IV rows played as DebugOut, "
+        f"original tables: {s.imu_rows_played} of {s.imu_rows} TABLE IV rows played as DebugOut, "
         f"{s.laser_rows} TABLE III poses stood in for the scan matcher",
         f"  {'column':<22} {'rows':>5} {'rms diff':>10} {'max diff':>10} {'corr':>6}",
     ]
@@ -98,7 +100,7 @@ def _seed_lines(r: ReplayReport) -> list[str]:
         lines.append(
             f"  {c.name:<22} {c.n:>5} {c.rms_diff:>10.4g} {c.max_abs_diff:>10.4g} {corr:>6}"
         )
-    lines.append("  (ours - seed; the replay's flight began at its own take-off)")
+    lines.append("  (ours - original; the replay's flight began at its own take-off)")
     return lines
 
 
@@ -106,7 +108,7 @@ def report_lines(r: ReplayReport) -> list[str]:
     """The human-readable report."""
     if r.seed is not None:
         return [
-            f"replayed the seed's tables {r.source} -> {r.out_dir}",
+            f"replayed the original system's tables {r.source} -> {r.out_dir}",
             f"  {r.recorded_s:.1f} s flown in {r.wall_s:.2f} s (CPU {r.cpu_s:.2f} s)",
             f"  flight: {r.flight.reason} (exit {r.flight.exit_code})",
             *(["  what if: " + ", ".join(r.overrides)] if r.overrides else []),
@@ -237,6 +239,10 @@ def cmd_replay(
         ReplayError: the folder cannot be replayed (file and offset named).
         ConfigError: a bad ``--set`` or a non-empty ``--out``.
     """
+    from mkflight.commands.progress import tty_bar
+    from mkflight.logs.flight_json import json_safe
+    from mkflight.replay.run import replay_flight
+
     with tty_bar(0, "rec") as bar:
         report = replay_flight(
             log_dir,
@@ -258,3 +264,53 @@ def cmd_replay(
         msg = "determinism check failed: the replay did not reproduce the recorded commands"
         raise ReplayError(msg)
     return 0
+
+
+def add_parser(subparsers: Subparsers) -> None:
+    """``replay LOGDIR`` (SPEC §6, §7)."""
+    replay = subparsers.add_parser(
+        "replay",
+        help="replay a recorded flight through mock serial ports into the daemon",
+        description="Plays a flight folder's recorded FC and URG bytes (mk.raw, laser.raw) "
+        "into the unchanged flight daemon (from memory with --fast, the default; through two "
+        "pseudo-terminals with --speed or --ptys), on a lock-step clock "
+        "that gives every byte its recorded time, and writes a new flight folder. With the "
+        "recorded configuration the ExternControl bytes and both tables must come out "
+        "identical (the determinism check: exit 1 and the first difference if not); with "
+        "--set it shows what the controller would have sent instead. The scan poses are "
+        "the recorded ones unless --set changes the mk, laser or scanmatch sections or "
+        "--rematch is given.",
+    )
+    replay.add_argument("log_dir", metavar="LOGDIR", help="the recorded flight folder")
+    pace = replay.add_mutually_exclusive_group()
+    pace.add_argument(
+        "--speed",
+        type=positive,
+        metavar="X",
+        help="play at X times the recorded pace (1 = real time)",
+    )
+    pace.add_argument(
+        "--fast", action="store_true", help="as fast as the daemon takes it (the default)"
+    )
+    replay.add_argument(
+        "--set",
+        metavar="KEY=VALUE",
+        action="append",
+        default=[],
+        dest="overrides",
+        help="what if: override a key of the recorded config, e.g. --set control.kp_xy=1.2",
+    )
+    replay.add_argument(
+        "--out", metavar="DIR", help="the new flight folder (default LOGDIR-replay)"
+    )
+    replay.add_argument(
+        "--rematch", action="store_true", help="run the scan matcher again on the replayed scans"
+    )
+    replay.add_argument(
+        "--ptys",
+        action="store_true",
+        help="play through two pseudo-terminals and the real serial stack even with --fast "
+        "(slower; --speed always does)",
+    )
+    add_json(replay, "the report as one JSON object")
+    replay.set_defaults(func=Command(cmd_replay))

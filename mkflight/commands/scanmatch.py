@@ -1,29 +1,14 @@
 """``mkflight scanmatch LOG [--odom FILE] [-o TRAJ]``: the scan matcher over a recorded log.
 
 Reads a CARMEN log (``FLASER`` / ``ROBOTLASER1`` lines, plain or gzip), tracks the pose
-with :class:`~mkflight.scanmatch.KeyframeMatcher` and writes ``t x y theta`` per scan
-(6 decimals, file order) in the log's own frame: x forward, y left, theta
-counter-clockwise, starting at the first scan's logged pose -- the laser pose of a
-``FLASER`` line, the robot pose of a ``ROBOTLASER1`` line (the laser's mounting offset on
-the robot, taken from the first record, is applied both ways). The output scores
-directly against a ``.gt.txt`` with ``relpose_eval.py``.
+with :func:`~mkflight.scanmatch.log_tracking.track_records` (which beams, which frame,
+the odometry prior) and writes ``t x y theta`` per scan in file order
+(:mod:`mkflight.scanmatch.trajectory`), which scores directly against a ``.gt.txt`` with
+``relpose_eval.py``.
 
-Beams used:
-
-* URG logs (a ``ROBOTLASER1`` whose beams are URG-04LX steps: resolution 2*pi/1024 and a
-  start angle on a step) use only ``laser.scan_steps`` (default 150..725), so the laser
-  hat (44..127) and the mirror edge (128..149) never enter the matcher; their line fits
-  use the URG default (``min_line_length_m`` 0.12 m: dense beams, 1 cm noise).
-* Any other log (SICK ``FLASER``: 180 or 360 beams over 180 degrees) uses all valid
-  beams, with the shortest line windows (``min_line_length_m`` 0: sparse beams).
-
-Validity: finite and ``laser.min_range_m <= r <`` the log's own maximum range.
-
-Motion prior: with ``--odom FILE`` (``t x y theta`` per line of the robot's odometry,
-``#`` lines skipped) the increment ``odom(t_prev)^-1 (+) odom(t)`` between consecutive
-scans' timestamps is the prior, each time matched to the nearest odometry sample within
-1 ms; a scan without such a sample falls back to the constant-velocity prediction (and
-is counted). Without ``--odom`` the matcher's own constant-velocity prediction is used.
+Validity of a beam: finite and ``laser.min_range_m <= r <`` the log's own maximum range.
+``--odom FILE`` is a ``t x y theta`` trajectory of the robot's odometry; the scans that
+found no odometry sample within 1 ms are counted in the summary.
 
 Malformed log lines are reported on stderr with their line numbers, counted, and skipped;
 the other scans are still matched.
@@ -31,200 +16,10 @@ the other scans are still matched.
 
 from __future__ import annotations
 
-import math
 import sys
-import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TextIO
 
-import numpy as np
-import numpy.typing as npt
-
-from mkflight.commands.progress import tty_bar
-from mkflight.config import LaserConfig, ScanmatchConfig, load_config
-from mkflight.errors import MkflightError, ProtocolError
-from mkflight.scanmatch import (
-    KeyframeMatcher,
-    LaserRecord,
-    MatchResult,
-    Pose,
-    between,
-    compose,
-    inverse,
-    read_carmen,
-    scan_to_points,
-)
-
-#: URG-04LX geometry (SPEC §2): 1024 steps per turn, step 384 straight ahead.
-URG_STEP_RAD = 2.0 * math.pi / 1024.0
-URG_FRONT_STEP = 384
-#: Timestamp tolerance when looking up odometry for a scan.
-ODOM_TOLERANCE_S = 1e-3
-#: Line-fit chord for URG logs and for other (sparser) lasers.
-URG_MIN_LINE_LENGTH_M = 0.12
-SPARSE_MIN_LINE_LENGTH_M = 0.0
-
-
-@dataclass(frozen=True, slots=True)
-class TrackedScan:
-    """One output pose and how it was obtained.
-
-    Attributes:
-        t_s: the scan's timestamp.
-        pose: the pose in the log's frame (x forward, y left, theta CCW).
-        result: the registration against the keyframe.
-        elapsed_s: wall time spent on this scan (points, line fits when a keyframe is
-            taken, registration), for benchmarks.
-        used_odom: the odometry prior was available for this scan.
-    """
-
-    t_s: float
-    pose: Pose
-    result: MatchResult
-    elapsed_s: float
-    used_odom: bool
-
-
-def urg_first_step(record: LaserRecord) -> int | None:
-    """The URG step of beam 0 when the record's beams are URG steps, else None."""
-    if record.kind != "ROBOTLASER1" or record.angles_rad.shape[0] < 2:
-        return None
-    res = float(record.angles_rad[1] - record.angles_rad[0])
-    if abs(res - URG_STEP_RAD) > 1e-5:
-        return None
-    steps = float(record.angles_rad[0]) / URG_STEP_RAD
-    if abs(steps - round(steps)) > 0.01:
-        return None
-    return round(steps) + URG_FRONT_STEP
-
-
-def beam_mask(record: LaserRecord, scan_steps: tuple[int, int]) -> npt.NDArray[np.bool_]:
-    """Valid beams to match: for URG logs only those inside ``scan_steps`` (inclusive)."""
-    first = urg_first_step(record)
-    mask = record.valid.copy()
-    if first is not None:
-        steps = first + np.arange(mask.shape[0])
-        mask &= (steps >= scan_steps[0]) & (steps <= scan_steps[1])
-    return mask
-
-
-def read_trajectory(path: str | Path) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """Read a ``t x y theta`` file (extra columns ignored, ``#`` lines skipped), sorted by t.
-
-    Raises:
-        ProtocolError: unreadable file, or a line that is not four finite numbers (named by
-            its line number).
-    """
-    rows: list[tuple[float, float, float, float]] = []
-    try:
-        with Path(path).open(encoding="utf-8", errors="replace") as fh:
-            for line_no, line in enumerate(fh, start=1):
-                f = line.split()
-                if not f or f[0].startswith("#"):
-                    continue
-                try:
-                    t, x, y, th = (float(v) for v in f[:4])
-                except ValueError as err:
-                    msg = f"{path}:{line_no}: expected 't x y theta', got {line.strip()!r}"
-                    raise ProtocolError(msg) from err
-                if not all(math.isfinite(v) for v in (t, x, y, th)):
-                    msg = f"{path}:{line_no}: non-finite value"
-                    raise ProtocolError(msg)
-                rows.append((t, x, y, th))
-    except OSError as err:
-        msg = f"{path}: cannot read trajectory: {err}"
-        raise ProtocolError(msg) from err
-    a = np.asarray(rows, dtype=np.float64).reshape(-1, 4)
-    order = np.argsort(a[:, 0], kind="stable")
-    return a[order, 0], a[order, 1:4]
-
-
-def _lookup(ts: npt.NDArray[np.float64], t: float) -> int:
-    """Index of the sample nearest to ``t`` within :data:`ODOM_TOLERANCE_S`, else -1."""
-    if ts.shape[0] == 0:
-        return -1
-    i = int(np.searchsorted(ts, t))
-    best = -1
-    best_d = ODOM_TOLERANCE_S
-    for j in (i - 1, i):
-        if 0 <= j < ts.shape[0]:
-            d = abs(float(ts[j]) - t)
-            if d <= best_d:
-                best, best_d = j, d
-    return best
-
-
-def track_records(
-    records: Sequence[LaserRecord],
-    *,
-    scan_steps: tuple[int, int] = LaserConfig().scan_steps,
-    odom: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None = None,
-    config: ScanmatchConfig | None = None,
-    on_scan: Callable[[], None] | None = None,
-) -> list[TrackedScan]:
-    """Run the keyframe matcher over the records (pure apart from the clock read for timing).
-
-    Args:
-        records: the log's laser records in file order.
-        scan_steps: URG steps to use (inclusive) when the log is a URG log.
-        odom: ``(t, poses)`` of an odometry trajectory for the motion prior, or None.
-        config: the ``scanmatch`` section (ICP tuning, keyframe policy); defaults when None.
-        on_scan: called once per scan (progress).
-
-    Returns:
-        One :class:`TrackedScan` per record, in the same order.
-    """
-    if not records:
-        return []
-    first = records[0]
-    urg = urg_first_step(first) is not None
-    mount: Pose = (
-        between(first.robot_pose, first.laser_pose)
-        if first.kind == "ROBOTLASER1"
-        else (0.0, 0.0, 0.0)
-    )
-    mount_inv = inverse(mount)
-    matcher = KeyframeMatcher(
-        config,
-        start_pose=first.laser_pose,
-        min_line_length_m=URG_MIN_LINE_LENGTH_M if urg else SPARSE_MIN_LINE_LENGTH_M,
-    )
-    out: list[TrackedScan] = []
-    prev_t: float | None = None
-    prev_odom = -1
-    for rec in records:
-        t0 = time.perf_counter()
-        mask = beam_mask(rec, scan_steps)
-        pts = scan_to_points(rec.ranges_m[mask], rec.angles_rad[mask], -math.inf, math.inf)
-        prior: Pose | None = None
-        cur_odom = -1
-        if odom is not None:
-            cur_odom = _lookup(odom[0], rec.t_s)
-            if prev_odom >= 0 and cur_odom >= 0:
-                a, b = odom[1][prev_odom], odom[1][cur_odom]
-                inc_robot = between((a[0], a[1], a[2]), (b[0], b[1], b[2]))
-                prior = compose(compose(mount_inv, inc_robot), mount)
-        dt = None if prev_t is None else rec.t_s - prev_t
-        update = matcher.update(pts, motion_prior=prior, dt_s=dt)
-        pose = compose(update.pose, mount_inv) if rec.kind == "ROBOTLASER1" else update.pose
-        elapsed = time.perf_counter() - t0
-        out.append(TrackedScan(rec.t_s, pose, update.result, elapsed, prior is not None))
-        prev_t, prev_odom = rec.t_s, cur_odom
-        if on_scan is not None:
-            on_scan()
-    return out
-
-
-def format_pose_line(t_s: float, pose: Pose) -> str:
-    """One ``t x y theta`` output line (6 decimals)."""
-    return f"{t_s:.6f} {pose[0]:.6f} {pose[1]:.6f} {pose[2]:.6f}\n"
-
-
-def _write(tracked: Sequence[TrackedScan], fh: TextIO) -> None:
-    for item in tracked:
-        fh.write(format_pose_line(item.t_s, item.pose))
+from mkflight.commands.args import Command, Subparsers, config_options
 
 
 def cmd_scanmatch(
@@ -245,6 +40,13 @@ def cmd_scanmatch(
         ProtocolError: the log or the odometry file cannot be read, or the log holds no
             laser scan at all.
     """
+    from mkflight.commands.progress import tty_bar
+    from mkflight.config import load_config
+    from mkflight.errors import MkflightError, ProtocolError
+    from mkflight.scanmatch.carmen import read_carmen
+    from mkflight.scanmatch.log_tracking import track_records
+    from mkflight.scanmatch.trajectory import read_trajectory, write_trajectory
+
     cfg = load_config(config_path, overrides)
     parsed = read_carmen(log, min_range_m=cfg.laser.min_range_m)
     for bad in parsed.malformed:
@@ -263,13 +65,14 @@ def cmd_scanmatch(
             config=cfg.scanmatch,
             on_scan=tick,
         )
+    poses = [(s.t_s, s.pose) for s in tracked]
     if out is None:
-        _write(tracked, sys.stdout)
+        write_trajectory(poses, sys.stdout)
         sys.stdout.flush()
     else:
         try:
             with Path(out).open("w", encoding="utf-8") as fh:
-                _write(tracked, fh)
+                write_trajectory(poses, fh)
         except OSError as err:
             msg = f"{out}: cannot write trajectory: {err.strerror or err}"
             raise MkflightError(msg) from err
@@ -284,3 +87,22 @@ def cmd_scanmatch(
         summary += f", {no_odom} scans without odometry within 1 ms"
     print(summary, file=sys.stderr)
     return 0
+
+
+def add_parser(subparsers: Subparsers) -> None:
+    """``scanmatch LOG``."""
+    match = subparsers.add_parser(
+        "scanmatch",
+        parents=[config_options()],
+        help="run the scan matcher over a recorded laser log",
+        description="Match every scan of a CARMEN log (FLASER/ROBOTLASER1 lines, plain or "
+        ".gz) and write 't x y theta' per scan in the log's own frame (SPEC §7).",
+    )
+    match.add_argument("log", metavar="LOG", help="the laser log")
+    match.add_argument(
+        "--odom", metavar="FILE", help="'t x y theta' odometry whose increments are the prior"
+    )
+    match.add_argument(
+        "-o", "--output", dest="out", metavar="TRAJ", help="write here instead of stdout"
+    )
+    match.set_defaults(func=Command(cmd_scanmatch))

@@ -6,9 +6,15 @@ import json
 from datetime import UTC, datetime
 from pathlib import Path
 
-from mkflight.config import load_config
+from mkflight.commands.args import (
+    Command,
+    Subparsers,
+    add_airframe,
+    add_json,
+    airframe_overrides,
+    config_options,
+)
 from mkflight.errors import ConfigError
-from mkflight.flight.step import MAX_HOLD_OFFSET_M
 
 
 def cmd_sim_hover(
@@ -26,10 +32,11 @@ def cmd_sim_hover(
 ) -> int:
     """Fly the simulated vehicle (take-off, hold, land) and print the hover precision.
 
-    ``airframe``: ``--airframe`` (:func:`~mkflight.commands.sim_run.airframe_overrides`);
+    ``airframe``: ``--airframe`` (:func:`~mkflight.commands.args.airframe_overrides`);
     ``scans``: ray-cast scans through the real laser pipeline.
     """
-    from mkflight.commands.sim_run import airframe_overrides
+    from mkflight.config import load_config
+    from mkflight.flight.step import MAX_HOLD_OFFSET_M
     from mkflight.sim.hover import run_hover
 
     cfg = load_config(config_path, airframe_overrides(overrides, airframe, seed))
@@ -72,3 +79,53 @@ def cmd_sim_hover(
     laser = "ray-cast scans, real scan matcher" if result.scans else "true pose + noise"
     print(f"airframe {kind}{which}; flight seed {seed_used}; laser: {laser}")
     return 0
+
+
+def add_parser(sim_commands: Subparsers) -> None:
+    """``sim hover``: a lock-step hover."""
+    hover = sim_commands.add_parser(
+        "hover",
+        parents=[config_options()],
+        help="fly a simulated hover in lock-step and print its precision",
+        description="Estimator, controllers, failsafe and vehicle model in lock-step, far "
+        "faster than real time: take off, hold, land; writes the flight folder (TABLE III "
+        "and IV, flight.json, truth.txt) and prints the hover precision against truth.",
+    )
+    hover.add_argument(
+        "--duration",
+        dest="duration_s",
+        type=float,
+        default=60.0,
+        metavar="S",
+        help="flight time",
+    )
+    hover.add_argument(
+        "--seed",
+        type=int,
+        metavar="N",
+        help="seeds the flight: noise, gusts, the vehicle's errors (default sim.seed); with "
+        "--airframe random also the airframe, unless --set sim.seed=M picks it "
+        "(--airframe random --set sim.seed=3 --seed 1: airframe 3, flight 1)",
+    )
+    add_airframe(hover)
+    hover.add_argument(
+        "--scans",
+        action="store_true",
+        help="ray-cast URG scans in the room through the real scan matcher and hat "
+        "(slower) instead of the true pose plus noise",
+    )
+    hover.add_argument(
+        "--height", dest="height_m", type=float, metavar="M", help="hover height (default 0.6)"
+    )
+    hover.add_argument("--log-dir", metavar="DIR", help="flight folder (default: new, dated)")
+    hover.add_argument(
+        "--excite",
+        dest="excite_m",
+        type=float,
+        default=0.0,
+        metavar="M",
+        help="move the HOLD set-point between +-M m in x and y (random 1.5-3 s dwell): "
+        "a response test for 'analyze latency'",
+    )
+    add_json(hover)
+    hover.set_defaults(func=Command(cmd_sim_hover))

@@ -8,33 +8,28 @@ to stderr.
 
 from __future__ import annotations
 
-import asyncio
 import math
 import os
 import signal
 import sys
 from typing import TYPE_CHECKING
 
-from mkflight.config import Config, load_config
+from mkflight.commands import sim_envelope, sim_hover
+from mkflight.commands.args import (
+    Command,
+    Subparsers,
+    add_airframe,
+    airframe_overrides,
+    config_options,
+    subcommands,
+)
 from mkflight.errors import ConfigError
 
 if TYPE_CHECKING:
+    import asyncio
+
+    from mkflight.config import Config
     from mkflight.sim.live import Fault
-
-
-def airframe_overrides(overrides: list[str], airframe: str | None, seed: int | None) -> list[str]:
-    """``overrides`` plus what ``--airframe`` means: ``sim.airframe``, and maybe ``sim.seed``.
-
-    ``--airframe random --seed N`` flies airframe N (``sim.seed=N``) unless a ``--set
-    sim.seed=M`` already picks the airframe; ``--seed`` alone seeds only the flight.
-    """
-    if airframe is None:
-        return list(overrides)
-    out = [*overrides, f"sim.airframe={airframe}"]
-    picked = any(o.replace(" ", "").startswith("sim.seed=") for o in overrides)
-    if airframe == "random" and seed is not None and not picked:
-        out.append(f"sim.seed={seed}")
-    return out
 
 
 def cmd_sim(
@@ -53,13 +48,14 @@ def cmd_sim(
 ) -> int:
     """Run the live simulator (:class:`~mkflight.sim.live.LiveSim`) until stopped.
 
-    ``airframe``: ``--airframe`` (:func:`airframe_overrides`).
+    ``airframe``: ``--airframe`` (:func:`~mkflight.commands.args.airframe_overrides`).
 
     Raises:
         ConfigError: a bad config, fault string or duration; the truth file exists.
     """
     import asyncio
 
+    from mkflight.config import load_config
     from mkflight.sim.live import parse_faults
 
     cfg = load_config(config_path, airframe_overrides(overrides, airframe, seed))
@@ -99,6 +95,8 @@ async def _serve(
     ``exit_on_eof``: the end of standard input means the parent that started us with a
     pipe has gone.
     """
+    import asyncio
+
     from mkflight.commands.interrupt import stop_on_signals
     from mkflight.sim.live import LiveSim
 
@@ -131,6 +129,8 @@ async def _serve(
 
 def _stop_on_stdin_eof(stop: asyncio.Event) -> None:
     """Set ``stop`` when standard input reaches its end (the writing parent exited)."""
+    import asyncio
+
     loop = asyncio.get_running_loop()
     fd = sys.stdin.fileno()
 
@@ -144,3 +144,55 @@ def _stop_on_stdin_eof(stop: asyncio.Event) -> None:
             stop.set()
 
     loop.add_reader(fd, readable)
+
+
+def add_parser(subparsers: Subparsers) -> None:
+    """``sim``: the live simulator, and its subcommands ``sim hover`` and ``sim envelope``."""
+    sim = subparsers.add_parser(
+        "sim",
+        parents=[config_options()],
+        help="the simulator: the vehicle on two ptys, or 'sim hover' in lock-step",
+        description="Without a subcommand: the simulated vehicle (vehicle model, FC "
+        "emulator, URG emulator in a room) in real time on two pseudo-terminals; prints "
+        "'mk PATH' and 'laser PATH' and runs until SIGINT/SIGTERM or --duration. Fly it "
+        "with 'mkflight fly --hover --mk-port PATH --laser-port PATH'.",
+    )
+    sim.add_argument(
+        "--seed",
+        type=int,
+        metavar="N",
+        help="seeds this run: noise, gusts, the vehicle's errors (default sim.seed); with "
+        "--airframe random also the airframe, unless --set sim.seed=M picks it",
+    )
+    add_airframe(sim)
+    sim.add_argument("--mk-link", metavar="PATH", help="a stable symlink to the FC's pty")
+    sim.add_argument("--laser-link", metavar="PATH", help="a stable symlink to the URG's pty")
+    sim.add_argument("--truth", metavar="FILE", help="write the ground truth (t x y z) here")
+    sim.add_argument(
+        "--fault",
+        dest="faults",
+        action="append",
+        default=[],
+        metavar="KIND@T[:ARG]",
+        help="inject a fault T s after start, e.g. laser-stall@20:2, fc-vanish@30, battery@25:10.0",
+    )
+    sim.add_argument(
+        "--faults-on-sigusr1",
+        action="store_true",
+        help="count the --fault times from a SIGUSR1 instead of the start (a test arms "
+        "them once the vehicle hovers)",
+    )
+    sim.add_argument(
+        "--duration", dest="duration_s", type=float, metavar="S", help="stop after S s"
+    )
+    sim.add_argument(
+        "--exit-on-eof",
+        action="store_true",
+        help="also stop when standard input ends (fly --sim: never outlive the daemon)",
+    )
+    sim.set_defaults(func=Command(cmd_sim))
+    # A subcommand's options overwrite the same dests of sim's own (argparse parses them
+    # into a fresh namespace, then copies it over): 'sim --seed 3 hover' flies seed None.
+    sim_commands = subcommands(sim, "sim_command", required=False)
+    sim_hover.add_parser(sim_commands)
+    sim_envelope.add_parser(sim_commands)

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import json
 from datetime import UTC, datetime
+from typing import TYPE_CHECKING
 
-from mkflight.analysis.attitude_fit import AttitudeFit
-from mkflight.analysis.identify import Identification, identify_flight
-from mkflight.analysis.tune import Tuned, check_target, tuning, write_tuned_config
-from mkflight.config import load_config
+from mkflight.commands.args import DOCUMENT, Command, Subparsers, add_json, config_options
+
+if TYPE_CHECKING:
+    from mkflight.analysis.attitude_fit import AttitudeFit
+    from mkflight.analysis.identify import Identification
+    from mkflight.analysis.tune import Tuned
 
 
 def cmd_tune(
@@ -35,6 +38,10 @@ def cmd_tune(
         ReplayError: not a flight folder, or a malformed log (exit 1).
         IdentificationError: no HOLD phase or too little of it (exit 1).
     """
+    from mkflight.analysis.identify import identify_flight
+    from mkflight.analysis.tune import check_target, tuning, write_tuned_config
+    from mkflight.config import load_config
+
     base_cfg = load_config(config_path, overrides)  # usage errors before the work
     if write_config is not None:
         check_target(write_config, config_path)
@@ -78,7 +85,7 @@ def _fit_row(fit: AttitudeFit, used: bool) -> str:
 
 def _print_identification(ident: Identification) -> None:
     print(f"airframe of {ident.log_dir}: HOLD {ident.hold_s:.1f} s ({ident.hold_steps} steps)")
-    print("attitude response (commanded angle -> FC angle: delay + first-order lag, seed §F):")
+    print("attitude response (commanded angle -> FC angle: delay + first-order lag, §F):")
     print(
         f"  {'axis':<6}{'delay s':>8}{'lag s':>8}{'sum s':>8}{'gain K':>8}{'R²':>8}"
         f"{'resid rad':>10}{'rows':>6}{'cmd std':>10}"
@@ -114,3 +121,25 @@ def _print_tuned(tuned: list[Tuned], base: str) -> None:
     print(f"overrides for {base}:")
     for t in tuned:
         print(f"  {t.override:<42} was {t.old:<8g} {t.why}")
+
+
+def add_parser(subparsers: Subparsers) -> None:
+    """``tune LOGDIR``."""
+    tune = subparsers.add_parser(
+        "tune",
+        parents=[config_options()],
+        help="identify a flight's airframe and write a config tuned for it",
+        description="From the HOLD phase of a flight folder: the attitude response per axis "
+        f"(delay + first-order lag and gain, §F of {DOCUMENT}), the hover gas, the "
+        "accelerometers' vibration and biases; then the overrides of the base config "
+        "(--config, --set) for that airframe by a documented rule (mkflight.analysis.tune).",
+    )
+    tune.add_argument("log_dir", metavar="LOGDIR", help="the flight folder")
+    tune.add_argument(
+        "--write-config",
+        metavar="F",
+        help="write the tuned configuration (all keys) to the new file F; an existing F is "
+        "refused unless it is the --config file itself",
+    )
+    add_json(tune)
+    tune.set_defaults(func=Command(cmd_tune))

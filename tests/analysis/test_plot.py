@@ -151,5 +151,5 @@ def test_malformed_row_names_file_and_line(flight: Path, tmp_path: Path) -> None
 def test_malformed_truth_log_is_a_clear_error(flight: Path, tmp_path: Path) -> None:
     folder = _copy(flight, tmp_path)
     (folder / "truth.txt").write_text("t x y z\n0.1 0.2\n")
-    with pytest.raises(PlotError, match=r"truth\.txt"):
+    with pytest.raises(ReplayError, match=r"truth\.txt:2: expected 't x y z'"):
         cmd_plot(log_dir=str(folder), out_dir=None)

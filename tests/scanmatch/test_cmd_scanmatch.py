@@ -14,8 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mkflight.commands.scanmatch import cmd_scanmatch, read_trajectory
+from mkflight.commands.scanmatch import cmd_scanmatch
 from mkflight.errors import ConfigError, ProtocolError
+from mkflight.scanmatch.trajectory import read_trajectory
 from mkflight.sim.room import box_room, raycast
 
 from .relpose import (

@@ -10,7 +10,7 @@ from types import ModuleType
 import numpy as np
 import pytest
 
-from mkflight.commands.scanmatch import read_trajectory
+from mkflight.scanmatch.trajectory import read_trajectory
 
 from .relpose import (
     HOVER_100_GT,
