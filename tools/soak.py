@@ -102,6 +102,7 @@ from soak_report import (  # tools/soak_report.py, beside this file
 from mkflight.config import Config, load_config
 from mkflight.control.phases import Phase
 from mkflight.errors import ConfigError
+from mkflight.logs.flight_json import to_plain
 from mkflight.sim.pty_server import LATE_NOTE_NS
 
 if TYPE_CHECKING:
@@ -436,7 +437,7 @@ async def soak(cfg: Config, plan: Plan, folder: Path) -> dict[str, Any]:
         }
         for name, v in sim_late.items()
     }
-    s = report.summary
+    s = to_plain(report.summary)  # the summary's keys, as in flight.json
     first, last = rec.samples[0], rec.samples[-1]
     out["flight"] = {
         "exit_code": report.exit_code,

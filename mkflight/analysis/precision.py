@@ -20,6 +20,7 @@ import numpy.typing as npt
 
 from mkflight.errors import MkflightError
 from mkflight.logs.events import Event
+from mkflight.logs.schema import Step
 
 SETTLE_S = 3.0
 """Samples count from this long after HOLD begins (as ``sim hover`` measures)."""
@@ -96,10 +97,9 @@ class Precision:
         return out
 
 
-def _num(value: object) -> float:
-    if isinstance(value, int | float) and not isinstance(value, bool):
-        return float(value)
-    return math.nan
+def _num(value: float | None) -> float:
+    """A step's number, NaN for null."""
+    return math.nan if value is None else value
 
 
 def hold_samples(events: Sequence[Event], settle_s: float = SETTLE_S) -> HoldSamples:
@@ -113,11 +113,10 @@ def hold_samples(events: Sequence[Event], settle_s: float = SETTLE_S) -> HoldSam
     sp: list[tuple[float, float, float]] = []
     start_ns: int | None = None
     for e in events:
-        f = e.fields
-        if e.event != "step" or f.get("phase") != "HOLD":
+        if not isinstance(e, Step) or e.phase != "HOLD":
             continue
-        p = (_num(f.get("x_m")), _num(f.get("y_m")), _num(f.get("height_m")))
-        s = (_num(f.get("sp_x_m")), _num(f.get("sp_y_m")), _num(f.get("sp_height_m")))
+        p = (_num(e.x_m), _num(e.y_m), _num(e.height_m))
+        s = (_num(e.sp_x_m), _num(e.sp_y_m), _num(e.sp_height_m))
         if not all(math.isfinite(v) for v in (*p, *s)):
             continue
         if start_ns is None:

@@ -26,6 +26,7 @@ from mkflight.analysis.precision import (
 )
 from mkflight.logs.events import FILE_NAME as EVENTS_FILE
 from mkflight.logs.events import read_events
+from mkflight.logs.schema import KnownEvent, Scan, Step
 from mkflight.logs.table3 import FILE_NAME as TABLE3_FILE
 from mkflight.logs.table3 import read_table3
 from mkflight.logs.table4 import FILE_NAME as TABLE4_FILE
@@ -108,12 +109,20 @@ def cmd_analyze_precision(*, log_dir: str, truth: str | None, as_json: bool) -> 
     return 0
 
 
-def _event_times_s(folder: Path, event: str, rows: int) -> np.ndarray | None:
-    """The ``event`` events' times (s), if the events log has exactly one per table row."""
+def _row_times_s(folder: Path, kind: type[KnownEvent], rows: int) -> np.ndarray | None:
+    """The table rows' times (s) from their events, if the log has exactly one per row.
+
+    A TABLE IV row's event is its ``Step``; a TABLE III row's the ``Scan`` that made it
+    (one with an ``index``: a scan that made no row has none).
+    """
     path = folder / EVENTS_FILE
     if not path.is_file() or path.stat().st_size == 0:
         return None
-    times = [e.t_ns for e in read_events(path).events if e.event == event]
+    times = [
+        e.t_ns
+        for e in read_events(path).events
+        if isinstance(e, kind) and not (isinstance(e, Scan) and e.index is None)
+    ]
     if len(times) != rows:
         return None
     return np.asarray(times, dtype=np.float64) / 1e9
@@ -147,8 +156,8 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
             msg = f"{folder / name}: {len(rows)} rows, too few to correlate"
             raise AnalysisInputError(msg)
     # The rows' times: the events' when there is one per row; else the indices' nominal ones.
-    t4_s = _event_times_s(folder, "step", len(t4))
-    t3_s = _event_times_s(folder, "scan", len(t3))
+    t4_s = _row_times_s(folder, Step, len(t4))
+    t3_s = _row_times_s(folder, Scan, len(t3))
     if t4_s is None or t3_s is None:
         t4_s = np.asarray(t4["index"], dtype=np.float64) * IMU_PERIOD_S
         t3_s = (np.asarray(t3["index"], dtype=np.float64) - 1.0) * LASER_PERIOD_S

@@ -42,7 +42,6 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import structlog
 
@@ -75,6 +74,20 @@ from mkflight.flight.tasks import (
 )
 from mkflight.io.serial import open_serial
 from mkflight.io.stream import ByteStream
+from mkflight.logs.schema import (
+    UNSET,
+    Crash,
+    FlightSummary,
+    KnownEvent,
+    PilotOverride,
+    Preflight,
+    PreflightFigures,
+    Ready,
+    Scan,
+    Stop,
+    StopDeadline,
+    from_plain,
+)
 from mkflight.mk.link import MkLink
 from mkflight.mk.messages import ExternControl, Ppm
 from mkflight.msgs import Command, ImuSample, plausible_imu
@@ -113,7 +126,7 @@ class FlightReport:
 
     exit_code: int
     reason: str
-    summary: dict[str, Any]
+    summary: FlightSummary
 
 
 class FlightApp:
@@ -273,7 +286,8 @@ class FlightApp:
         self.pending.append(first)
         if self.logs is not None:
             self.logs.set_fc_version(version.text)
-        self.event(self.clock.now_ns(), "preflight", **report.as_dict())
+        figures = from_plain(PreflightFigures, report.as_dict())
+        self.event(Preflight.of(self.clock.now_ns(), figures))
         self.preflight = report
         return report
 
@@ -293,12 +307,12 @@ class FlightApp:
         # it there: the request's time alone does not say whether that step's DebugOut,
         # read just before, had been stepped yet).
         steps = self.core.counters.imu_steps if self.start_ns else None
-        self.event(now, "stop", request=request.value, reason=reason, steps=steps)
+        self.event(Stop(t_ns=now, request=request.value, reason=reason, steps=steps))
 
-    def event(self, t_ns: int, event: str, **fields: Any) -> None:
+    def event(self, event: KnownEvent) -> None:
         """One ``events.jsonl`` line (nothing before the folder exists or after a failure)."""
         if self.logs is not None:
-            self.logs.event(t_ns, event, **fields)
+            self.logs.event(event)
 
     def attitude_at(self, t_ns: int) -> tuple[float, float]:
         """Pitch and roll of the DebugOut sample nearest ``t_ns`` (NaN if none)."""
@@ -336,19 +350,20 @@ class FlightApp:
             if row is not None and self.logs is not None:
                 self.logs.row3(row)
             self.event(
-                r.scan_t_ns,
-                "scan",
-                index=None if row is None else row.index,
-                step=step,
-                seq=r.seq,
-                valid=r.pose is not None,
-                got_ns=self.result_ns.pop(r.seq, None),
-                x_m=None if r.pose is None else r.pose.x_m,
-                y_m=None if r.pose is None else r.pose.y_m,
-                yaw_rad=None if r.pose is None else r.pose.yaw_rad,
-                height_m=r.height_m,
-                degenerate=r.degenerate,
-                match_ms=round(r.compute_s * 1000, 3),
+                Scan(
+                    t_ns=r.scan_t_ns,
+                    index=None if row is None else row.index,
+                    step=step,
+                    seq=r.seq,
+                    valid=r.pose is not None,
+                    got_ns=self.result_ns.pop(r.seq, None),
+                    x_m=None if r.pose is None else r.pose.x_m,
+                    y_m=None if r.pose is None else r.pose.y_m,
+                    yaw_rad=None if r.pose is None else r.pose.yaw_rad,
+                    height_m=r.height_m,
+                    degenerate=r.degenerate,
+                    match_ms=round(r.compute_s * 1000, 3),
+                )
             )
 
     def _handshake_ok(self) -> bool:
@@ -367,7 +382,7 @@ class FlightApp:
             self._last_ppm = ppm
             was = self.pilot.override
             if self.pilot.update(ppm) and not was:
-                self.event(self.clock.now_ns(), "pilot_override", moved=dict(self.pilot.moved))
+                self.event(PilotOverride(t_ns=self.clock.now_ns(), moved=dict(self.pilot.moved)))
         return self.pilot.override
 
     def _ask_sticks(self, t_ns: int) -> None:
@@ -499,7 +514,7 @@ class FlightApp:
                 await self.before_ready()
                 self.notifier.ready()
                 self.start_ns = self.clock.now_ns()
-                self.event(self.start_ns, "ready")  # steps use DebugOut from here on
+                self.event(Ready(t_ns=self.start_ns))  # steps use DebugOut from here on
                 error = await self._run_tasks()
         except Exception as err:  # every failure leaves through the shutdown
             error = err
@@ -513,8 +528,8 @@ class FlightApp:
         if error is not None:
             return FlightReport(1, f"{type(error).__name__}: {error}", summary)
         if self.logs is not None and self.logs.error is not None:  # landed, but logs are lost
-            return FlightReport(1, summary["end_reason"], summary)
-        return FlightReport(0, summary["end_reason"], summary)
+            return FlightReport(1, summary.end_reason, summary)
+        return FlightReport(0, summary.end_reason, summary)
 
     def _on_signal(self, request: StopRequest, name: str) -> None:
         """SIGINT/SIGTERM/SIGHUP: land. After SIGHUP the terminal is gone: no status line."""
@@ -537,17 +552,18 @@ class FlightApp:
                     others.discard(task)
                     exc = task.exception()
                     if isinstance(exc, StopDeadlineError):  # release now: the shutdown does it
-                        self.event(self.clock.now_ns(), "stop_deadline", error=str(exc))
+                        self.event(StopDeadline(t_ns=self.clock.now_ns(), error=str(exc)))
                         return exc
                     if exc is not None and crash is None:
                         crash = exc
                         bug = not isinstance(exc, MkflightError)  # its stack is wanted
                         self.event(
-                            self.clock.now_ns(),
-                            "crash",
-                            task=task.get_name(),
-                            error=repr(exc),
-                            **({"exception": exception_text(exc)} if bug else {}),
+                            Crash(
+                                t_ns=self.clock.now_ns(),
+                                task=task.get_name(),
+                                error=repr(exc),
+                                exception=exception_text(exc) if bug else UNSET,
+                            )
                         )
                         log.error(
                             "task crashed",
@@ -558,18 +574,19 @@ class FlightApp:
                         self.request_stop(StopRequest.CRASH, f"{task.get_name()} task: {exc}")
             exc = mk.exception()
             if isinstance(exc, StopDeadlineError):
-                self.event(self.clock.now_ns(), "stop_deadline", error=str(exc))
+                self.event(StopDeadline(t_ns=self.clock.now_ns(), error=str(exc)))
                 return exc
             if exc is not None:
                 if isinstance(exc, MkflightError):  # a failure named to the operator
-                    self.event(self.clock.now_ns(), "crash", task="mk-step", error=repr(exc))
+                    self.event(Crash(t_ns=self.clock.now_ns(), task="mk-step", error=repr(exc)))
                     return exc
                 self.event(  # a bug: its stack for whoever reads the logs
-                    self.clock.now_ns(),
-                    "crash",
-                    task="mk-step",
-                    error=repr(exc),
-                    exception=exception_text(exc),
+                    Crash(
+                        t_ns=self.clock.now_ns(),
+                        task="mk-step",
+                        error=repr(exc),
+                        exception=exception_text(exc),
+                    )
                 )
                 log.error("task crashed", task="mk-step", exc_info=exc)
                 return exc
@@ -583,7 +600,7 @@ class FlightApp:
 
     # ----- the way out --------------------------------------------------------------------
 
-    async def _shutdown(self, error: BaseException | None) -> dict[str, Any]:
+    async def _shutdown(self, error: BaseException | None) -> FlightSummary:
         """Release, close the ports and the matcher, write the summary, close the logs."""
         self.notifier.stopping()
         self.gc_watch.uninstall()

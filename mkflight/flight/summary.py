@@ -6,6 +6,20 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from mkflight.clock import NS_PER_S
+from mkflight.logs.schema import (
+    UNSET,
+    CpuInHold,
+    FlightSummary,
+    GcStats,
+    LaserLinkStats,
+    Learned,
+    MatcherStats,
+    MkLinkStats,
+    PrecisionEstimate,
+    PreflightFigures,
+    Timing,
+    from_plain,
+)
 
 if TYPE_CHECKING:
     from mkflight.flight.app import FlightApp
@@ -19,44 +33,45 @@ def end_reason(app: FlightApp) -> str:
     return f"failsafe: {events[0]}" if events else f"phase {app.core.phase.name}"
 
 
-def flight_summary(app: FlightApp, error: BaseException | None, released: bool) -> dict[str, Any]:
+def flight_summary(app: FlightApp, error: BaseException | None, released: bool) -> FlightSummary:
     """The ``flight.json`` summary of ``app``'s flight (``released``: Config = 0 went out)."""
     wall_s = time.perf_counter() - app.wall0_s
     cpu_s = time.process_time() - app.cpu0_s
-    counters = app.core.counters
-    out: dict[str, Any] = {
-        "end_reason": str(error) if error is not None else end_reason(app),
-        "exit_code": 0 if error is None and not (app.logs and app.logs.error) else 1,
-        "duration_s": round(wall_s, 3),
-        "flight_s": round((app.clock.now_ns() - app.start_ns) / NS_PER_S, 3)
-        if app.start_ns
-        else 0.0,
-        "final_phase": app.core.phase.name,
-        "released": released,
-        "failsafes": list(counters.failsafe_events),
-        "learned": app.core.learned(),
-        "timing": app.stats.summary(),
-        "cpu_percent_of_one_core": round(100.0 * cpu_s / wall_s, 2) if wall_s > 0 else None,
-        "cpu_percent_in_hold": app.monitor.cpu_percent(),
-        "precision_estimate": app.monitor.precision(),
-        "gc": app.gc_watch.summary(),
-        "matcher": {
-            "scans": app.matches,
-            "cpu_ms_per_scan": round(1000 * app.monitor.matcher_cpu_s / app.matches, 3)
+    cpu_in_hold = app.monitor.cpu_percent()
+    precision = app.monitor.precision()
+    logs = app.logs
+    raw = logs.raw_counters() if logs is not None else (UNSET, UNSET)
+    return FlightSummary(
+        end_reason=str(error) if error is not None else end_reason(app),
+        exit_code=0 if error is None and not (logs and logs.error) else 1,
+        duration_s=round(wall_s, 3),
+        flight_s=round((app.clock.now_ns() - app.start_ns) / NS_PER_S, 3) if app.start_ns else 0.0,
+        final_phase=app.core.phase.name,
+        released=released,
+        failsafes=list(app.core.counters.failsafe_events),
+        learned=from_plain(Learned, app.core.learned()),
+        timing=from_plain(Timing, app.stats.summary()),
+        cpu_percent_of_one_core=round(100.0 * cpu_s / wall_s, 2) if wall_s > 0 else None,
+        cpu_percent_in_hold=None if cpu_in_hold is None else from_plain(CpuInHold, cpu_in_hold),
+        precision_estimate=None if precision is None else from_plain(PrecisionEstimate, precision),
+        gc=from_plain(GcStats, app.gc_watch.summary()),
+        matcher=MatcherStats(
+            scans=app.matches,
+            cpu_ms_per_scan=round(1000 * app.monitor.matcher_cpu_s / app.matches, 3)
             if app.matches
             else None,
-        },
-    }
-    if app.preflight is not None:
-        out["preflight"] = app.preflight.as_dict()
-    if app.link is not None:
-        out["mk_link"] = app.link.stats.summary()
-    if app.driver is not None:
-        out["laser_link"] = _plain(app.driver.stats)
-    if app.logs is not None:
-        out.update(app.logs.raw_summary())
-        out["log_error"] = app.logs.error and str(app.logs.error)
-    return out
+        ),
+        preflight=UNSET
+        if app.preflight is None
+        else from_plain(PreflightFigures, app.preflight.as_dict()),
+        mk_link=UNSET if app.link is None else from_plain(MkLinkStats, app.link.stats.summary()),
+        laser_link=UNSET
+        if app.driver is None
+        else from_plain(LaserLinkStats, _plain(app.driver.stats)),
+        mk_raw=raw[0],
+        laser_raw=raw[1],
+        log_error=UNSET if logs is None else None if logs.error is None else str(logs.error),
+    )
 
 
 def _plain(stats: object) -> dict[str, Any]:

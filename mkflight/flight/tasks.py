@@ -18,6 +18,7 @@ from mkflight.clock import NS_PER_S
 from mkflight.control.phases import Phase
 from mkflight.errors import FlightError, LinkError
 from mkflight.flight.matcher_worker import MatcherError
+from mkflight.logs.schema import LaserLost, LaserReopened, LaserSilent
 from mkflight.safety.failsafe import StopRequest
 
 if TYPE_CHECKING:
@@ -85,13 +86,13 @@ async def laser_task(app: FlightApp) -> None:
             scan = await app.driver.next_scan(timeout_s)
         except LinkError as err:
             if app.driver.error is None:  # no scan in time: the driver keeps restarting
-                app.event(app.clock.now_ns(), "laser_silent", error=str(err))
+                app.event(LaserSilent(t_ns=app.clock.now_ns(), error=str(err)))
                 continue  # and the step's laser staleness check lands the vehicle
-            app.event(app.clock.now_ns(), "laser_lost", error=str(err))
+            app.event(LaserLost(t_ns=app.clock.now_ns(), error=str(err)))
             app.mark("laser", "c", str(err))
             log.warning("laser lost", error=str(err))
             await app.driver.reopen(max_wait_s=30.0)
-            app.event(app.clock.now_ns(), "laser_reopened")
+            app.event(LaserReopened(t_ns=app.clock.now_ns()))
             continue
         if not app.scan_wanted(scan.seq):
             continue

@@ -49,7 +49,6 @@ from mkflight.clock import NS_PER_S
 from mkflight.config import Config
 from mkflight.control.phases import Phase, PhaseRequests
 from mkflight.flight.step import PilotSticks
-from mkflight.logs.flight_json import with_summary, write_flight_json
 from mkflight.mk.messages import DebugOut
 from mkflight.mk.units import imu_from_debug
 from mkflight.sim.airframe import airframe_from_config, describe
@@ -314,7 +313,7 @@ def run_hover(
         learned=flight.learned(),
         scans=scans,
     )
-    write_flight_json(log_dir, with_summary(flight.info, result.as_dict()))
+    flight.write_summary(log_dir, result.as_dict())
     return result
 
 

@@ -17,6 +17,7 @@ import numpy as np
 from mkflight.config import Config
 from mkflight.logs.events import EventsWriter
 from mkflight.logs.flight_json import new_flight_info, write_flight_json
+from mkflight.logs.schema import Step
 from mkflight.logs.table4 import Table4Row, Table4Writer
 
 PERIOD_S = 0.053248
@@ -117,14 +118,15 @@ def write_flight(
                 )
             )
             events.write(
-                1_000_000_000 + round(t[k] * 1e9),
-                "step",
-                height_m=0.6,
-                vz_up_mps=round(float(rng.normal(0.0, 0.02)), 4),
-                gas_counts=int(gas[k]),
-                battery_v=a.battery_v,
-                phase=str(phase[k]),
-                action="NONE",
+                Step(
+                    t_ns=1_000_000_000 + round(t[k] * 1e9),
+                    height_m=0.6,
+                    vz_up_mps=round(float(rng.normal(0.0, 0.02)), 4),
+                    gas_counts=int(gas[k]),
+                    battery_v=a.battery_v,
+                    phase=str(phase[k]),
+                    action="NONE",
+                )
             )
     finally:
         t4.close()
