@@ -161,7 +161,7 @@ class PhaseChange(FlightEvent, tag="phase", kw_only=True, frozen=True):
 
 
 class PreflightFigures(msgspec.Struct, kw_only=True, frozen=True):
-    """What the pre-flight checks measured (SPEC §7)."""
+    """What the pre-flight checks measured (SPEC §4, flight phases)."""
 
     fc_version: Annotated[str, _d("the FlightCtrl's version text")]
     debug_period_ms: Annotated[float | None, _d("DebugOut interval")]
@@ -379,7 +379,7 @@ class MkLinkStats(msgspec.Struct, kw_only=True, frozen=True):
 
 
 class LaserLinkStats(msgspec.Struct, kw_only=True, frozen=True):
-    """The URG driver's counters (SPEC §3): parser, scans, restarts."""
+    """The URG driver's counters (SPEC §2): parser, scans, restarts."""
 
     parser_bytes_in: int
     parser_replies: int
