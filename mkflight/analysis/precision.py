@@ -1,4 +1,6 @@
-"""Hover precision from a flight folder: mean, std, RMS and max error (seed §O-P, TABLE IX).
+"""Hover precision from a flight folder: mean, std, RMS and max error.
+
+This is §O-P and TABLE IX of the 2011 QUT CyPhy MikroKopter documentation.
 
 The error is position minus set-point, per axis (x, y in the world frame W, height up;
 SPEC §1), over the HOLD phase of the ``step`` events (``events.jsonl``, SPEC §6). The
@@ -39,7 +41,7 @@ class AnalysisInputError(MkflightError):
 
 @dataclass(frozen=True, slots=True)
 class TableIXRow:
-    """One row of the seed's TABLE IX (hovering), in m; ``kind`` is ``RMS`` or ``std``."""
+    """One row of TABLE IX (hovering), in m; ``kind`` is ``RMS`` or ``std``."""
 
     name: str
     kind: str
@@ -54,7 +56,7 @@ SEED_TABLE_IX: tuple[TableIXRow, ...] = (
     TableIXRow("ETHZ (ASL) 2011", "RMS", 0.12, 0.12, 0.01),
     TableIXRow("QUT 2011", "std", 0.075368, 0.080849, 0.031913),
 )
-"""The seed's TABLE IX hovering rows (Freiburg and Oxford give only Error_Z = ±0.1 m)."""
+"""TABLE IX's hovering rows (Freiburg and Oxford give only Error_Z = ±0.1 m)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,4 +1,8 @@
-"""``mkflight analyze precision|latency LOGDIR``: the seed's §O-P and §F analyses of a flight."""
+"""``mkflight analyze precision|latency LOGDIR``: two analyses of a flight.
+
+They are §O-P (hover precision, TABLE IX) and §F (response lag, Fig 8) of
+the 2011 QUT CyPhy MikroKopter documentation.
+"""
 
 from __future__ import annotations
 
@@ -60,7 +64,7 @@ def _read_text(path: Path) -> str:
 
 
 def cmd_analyze_precision(*, log_dir: str, truth: str | None, as_json: bool) -> int:
-    """Print the hover precision of a flight folder beside the seed's TABLE IX (§O-P).
+    """Print the hover precision of a flight folder beside TABLE IX (§O-P).
 
     Args:
         log_dir: the flight folder (its ``events.jsonl``: set-points, estimates, phases).
@@ -95,15 +99,16 @@ def cmd_analyze_precision(*, log_dir: str, truth: str | None, as_json: bool) -> 
         print(json.dumps(p.as_dict()))
         return 0
     print(
-        f"hover precision of {folder} (seed §O-P): {p.samples} HOLD steps from "
-        f"{SETTLE_S:g} s after HOLD began, position = {source}, error = position - set-point"
+        f"hover precision of {folder} (§O-P of the 2011 QUT CyPhy MikroKopter documentation): "
+        f"{p.samples} HOLD steps from {SETTLE_S:g} s after HOLD began, position = {source}, "
+        "error = position - set-point"
     )
     print(f"{'':28}{'x m':>10}{'y m':>10}{'z m':>10}")
     for stat in ("mean", "std", "rms", "max"):
         vals = [getattr(a, f"{stat}_m") for a in (p.x, p.y, p.z)]
         label = "max |err|" if stat == "max" else stat
         print(f"  this flight  {label:<14}" + "".join(f"{v:10.4f}" for v in vals))
-    print("seed TABLE IX (hovering):")
+    print("its TABLE IX (hovering):")
     for row in SEED_TABLE_IX:
         print(f"  {row.name:<18} {row.kind:<7}{row.x_m:10.4f}{row.y_m:10.4f}{row.z_m:10.4f}")
     return 0
@@ -136,7 +141,7 @@ def _print_curve(name: str, curve: LagCurve, period_s: float) -> None:
 
 
 def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
-    """Print the vehicle's response lag by cross-correlation (seed §F, Fig 8).
+    """Print the vehicle's response lag by cross-correlation (§F, Fig 8).
 
     Args:
         log_dir: the flight folder (its ``imu_50ms.log`` and ``laser_100ms.log``; the
@@ -176,8 +181,8 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
         return 0
     print(
         f"response lag of {folder}: {lat.lag_steps} steps = {lat.lag_s * 1000:.0f} ms at "
-        f"{lat.period_s * 1000:.1f} ms a step (the seed, Fig 8: ~{SEED_LAG_STEPS} steps = "
-        f"{SEED_LAG_STEPS * 50} ms)"
+        f"{lat.period_s * 1000:.1f} ms a step (the 2011 QUT CyPhy MikroKopter documentation, "
+        f"Fig 8: ~{SEED_LAG_STEPS} steps = {SEED_LAG_STEPS * 50} ms)"
     )
     _print_curve("acceleration", lat.acceleration, lat.period_s)
     if lat.attitude is not None:
@@ -185,7 +190,7 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
     if lat.velocity is not None:
         _print_curve("velocity", lat.velocity, lat.period_s)
     print("  acceleration: commanded tilt -> laser body acceleration (the response lag)")
-    print("  attitude: -> the FC's angles; velocity: the seed's Fig 8 (adds the integration)")
+    print("  attitude: -> the FC's angles; velocity: Fig 8's curve (adds the integration)")
     if lat.peak_r < WEAK_PEAK_R:
         print(
             f"  weak peak (r = {lat.peak_r:.2f} < {WEAK_PEAK_R}): too little excitation "

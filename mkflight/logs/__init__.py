@@ -1,7 +1,8 @@
 """Flight logs (SPEC §6): one module per format, reader and writer together.
 
-* :mod:`~mkflight.logs.table3` -- ``laser_100ms.log`` (seed TABLE III, 10 columns).
-* :mod:`~mkflight.logs.table4` -- ``imu_50ms.log`` (seed TABLE IV, 14 columns).
+* :mod:`~mkflight.logs.table3` -- ``laser_100ms.log`` (TABLE III of the 2011 QUT CyPhy
+  MikroKopter documentation, 10 columns).
+* :mod:`~mkflight.logs.table4` -- ``imu_50ms.log`` (its TABLE IV, 14 columns).
 * :mod:`~mkflight.logs.flight_json` -- ``flight.json`` (start, versions, config, summary).
 * :mod:`~mkflight.logs.events` -- ``events.jsonl`` (everything else, JSON lines).
 * :mod:`~mkflight.logs.schema` -- the typed records: one Struct per event kind, and

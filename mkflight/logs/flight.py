@@ -13,7 +13,7 @@ records and the truth rows alike, so all arrays plot on one axis. ``t0_ns`` is t
 ``start_t_ns`` of the ``mk.raw`` header (the recorders start as the folder is created,
 before the links open), else of ``laser.raw``, else the first event's ``t_ns``, else None.
 The table rows carry no time: a row's time is its event's (``step`` for TABLE IV,
-``scan`` for TABLE III), NaN if it has none; a folder without ``events.jsonl`` (the seed's
+``scan`` for TABLE III), NaN if it has none; a folder without ``events.jsonl`` (the system
 system wrote only the two tables) gets the nominal ``index`` times the step period
 (0.05 s, 0.1 s) instead.
 
@@ -72,7 +72,7 @@ NS_PER_S: Final = 1e9
 MK_RAW: Final = "mk.raw"
 LASER_RAW: Final = "laser.raw"
 TRUTH: Final = "truth.txt"  # as mkflight.flight.flight_logs.TRUTH_FILE
-IMU_PERIOD_S: Final = 0.05  # TABLE IV: one row per 50 ms step (the seed's rate)
+IMU_PERIOD_S: Final = 0.05  # TABLE IV: one row per 50 ms step (the documented rate)
 LASER_PERIOD_S: Final = 0.1  # TABLE III: one row per 100 ms laser step
 MIN_TEXT: Final = 16  # string columns are at least 'U16'
 
@@ -124,7 +124,7 @@ class FlightData:
 
     Attributes:
         path: the folder.
-        t0_ns: the flight clock's ``t_ns`` at ``t_s`` = 0; None for a seed folder.
+        t0_ns: the flight clock's ``t_ns`` at ``t_s`` = 0; None for a tables-only folder.
         imu: TABLE IV rows, fields named as its header (``"AccX"``, ``"index"``...).
         imu_t_s: each ``imu`` row's time: its ``step`` event's (the k-th step event is
             the row of index k), NaN if none; nominal ``index * 0.05`` without events.

@@ -25,7 +25,7 @@ computed) are written as ``null``: strict JSON has no NaN.
 
 ``log_format`` versions the whole flight folder (the files, their columns, the events'
 fields; SPEC §6): it changes only when a reader of the previous format would misread the
-folder. Files written before the key existed are format 1; a reader refuses a format newer
+folder. A file without the key is format 1; a reader refuses a format newer
 than :data:`LOG_FORMAT` with a :class:`~mkflight.errors.ReplayError` naming the file.
 """
 
@@ -184,7 +184,7 @@ def read_flight_json(path: str | Path) -> FlightInfo:
         "config": (dict,),
         "summary": (dict, type(None)),
     }
-    log_format = data.setdefault("log_format", 1)  # written before the key existed
+    log_format = data.setdefault("log_format", 1)  # no key: format 1
     if not isinstance(log_format, int) or isinstance(log_format, bool) or log_format < 1:
         msg = f"{path}: log_format: expected a positive integer, got {log_format!r}"
         raise ReplayError(msg)

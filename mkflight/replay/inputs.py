@@ -119,7 +119,7 @@ class RecordedFlight:
 
     @property
     def has_poses(self) -> bool:
-        """The events name each scan's pose (flights recorded before did not)."""
+        """The events name each scan's pose (a scan event without its pose fields names none)."""
         return bool(self.scans)
 
     @property
@@ -214,7 +214,7 @@ def _events(folder: Path, warnings: list[str]) -> _EventInputs:
             case Ready():
                 out.ready_ns = ev.t_ns
             case Preflight() if out.ready_ns is None:
-                out.ready_ns = ev.t_ns  # flights before the 'ready' event: the pre-flight's end
+                out.ready_ns = ev.t_ns  # no 'ready' event: READY came as the pre-flight ended
             case Scan() if ev.x_m is not UNSET:  # the pose recorded (else matched again)
                 scans[ev.seq] = _recorded_scan(ev, where)
             case Stop():
@@ -235,7 +235,7 @@ def _stop(ev: Stop, out: _EventInputs) -> None:
         return
     if ev.steps is not None:
         out.step_stops.append((ev.steps, request, ev.reason))
-    else:  # before READY, or a flight recorded before 'steps'
+    else:  # before READY, or no 'steps' in the event
         out.stops.append(Input(ev.t_ns, "", "s", stop=request, reason=ev.reason))
 
 

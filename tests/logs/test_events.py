@@ -88,7 +88,7 @@ def test_preflight_event_and_summary_part_have_the_same_fields() -> None:
 
 
 def test_format_1_lines_read_typed_and_write_back_byte_for_byte(tmp_path: Path) -> None:
-    """A flight recorded before the Structs (format 1): every line a known kind, encoded
+    """A format-1 flight (mkflight 0.1.0's lines): every line a known kind, encoded
     again exactly as it was."""
     path = tmp_path / FILE_NAME
     path.write_text("".join(line + "\n" for line in format1.EVENT_LINES))

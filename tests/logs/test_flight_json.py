@@ -65,7 +65,7 @@ def test_reader_errors_name_file_and_key(tmp_path: Path) -> None:
 def test_a_format_1_flight_json_reads_typed_and_writes_back_byte_for_byte(
     tmp_path: Path,
 ) -> None:
-    """A flight.json written before the summary Structs: the same bytes once read and written."""
+    """A format-1 flight.json (mkflight 0.1.0's): the same bytes once read and written."""
     text = json.dumps(format1.FLIGHT_JSON, indent=2) + "\n"
     (tmp_path / FILE_NAME).write_text(text)
     info = read_flight_json(tmp_path)

@@ -553,7 +553,7 @@ def test_a_known_kinds_columns_are_its_struct_fields(folder: Path) -> None:
 
 
 def test_a_format_1_folder_loads(folder: Path) -> None:
-    """A folder recorded before the Structs (log format 1) loads, typed, without warnings."""
+    """A format-1 folder (mkflight 0.1.0's lines) loads, typed, without warnings."""
     folder.mkdir()
     (folder / "events.jsonl").write_text("".join(e + "\n" for e in format1.EVENT_LINES))
     (folder / "flight.json").write_text(json.dumps(format1.FLIGHT_JSON, indent=2))
