@@ -207,19 +207,8 @@ def cmd_fly(
     )
     truth = _truth_precision(folder)  # when a simulator wrote its truth there
     if as_json:
-        print(
-            json.dumps(
-                json_safe(
-                    {
-                        "log_dir": str(folder),
-                        "reason": reason,
-                        "truth_precision": truth,
-                        **to_plain(summary),
-                    }
-                ),
-                allow_nan=False,
-            )
-        )
+        head = {"log_dir": str(folder), "reason": reason, "truth_precision": truth}
+        print(json.dumps(json_safe({**head, **to_plain(summary)}), allow_nan=False))
     else:
         _print_summary(folder, reason, summary, truth)
     if code != 0:

@@ -50,6 +50,19 @@ def step_responses(t_s: np.ndarray, cmd: np.ndarray, delay_s: float, tau_s: floa
     return out
 
 
+def _step(t_s: float, vz_up_mps: float, gas_counts: int, battery_v: float, phase: str) -> Step:
+    """The step event of a flight whose clock starts at 1 s."""
+    return Step(
+        t_ns=1_000_000_000 + round(t_s * 1e9),
+        height_m=0.6,
+        vz_up_mps=vz_up_mps,
+        gas_counts=gas_counts,
+        battery_v=battery_v,
+        phase=phase,
+        action="NONE",
+    )
+
+
 def write_flight(
     folder: Path,
     airframe: Airframe | None = None,
@@ -117,17 +130,8 @@ def write_flight(
                     k + 1,
                 )
             )
-            events.write(
-                Step(
-                    t_ns=1_000_000_000 + round(t[k] * 1e9),
-                    height_m=0.6,
-                    vz_up_mps=round(float(rng.normal(0.0, 0.02)), 4),
-                    gas_counts=int(gas[k]),
-                    battery_v=a.battery_v,
-                    phase=str(phase[k]),
-                    action="NONE",
-                )
-            )
+            vz_up_mps = round(float(rng.normal(0.0, 0.02)), 4)
+            events.write(_step(t[k], vz_up_mps, int(gas[k]), a.battery_v, str(phase[k])))
     finally:
         t4.close()
         events.close()
