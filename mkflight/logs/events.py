@@ -14,7 +14,7 @@ Reading is tolerant where a newer or older writer may differ and strict where th
 is damaged: a line that is not a JSON object with an integer ``t_ns`` and a string
 ``event`` is a :class:`~mkflight.errors.ReplayError` naming the file and line; a line of
 an unknown kind, or of a known kind whose fields do not fit its Struct, is kept as an
-:class:`~mkflight.logs.schema.UnknownEvent` (counted in :attr:`EventsData.unknown`).
+:class:`~mkflight.logs.schema.UnknownEvent` (counted in :attr:`EventsData.warnings`).
 """
 
 from __future__ import annotations
