@@ -137,6 +137,14 @@ def test_events_are_flushed_as_written(tmp_path: Path) -> None:
         w.write(Ready(t_ns=6))
 
 
+def test_t_ns_and_event_cannot_be_set_as_fields() -> None:
+    """``event`` is the kind's tag, not a field; ``t_ns`` is every kind's first field."""
+    with pytest.raises(TypeError, match="event"):
+        Ready(t_ns=1, event="x")  # type: ignore[call-arg]
+    with pytest.raises(TypeError, match="t_ns"):
+        Ready()  # type: ignore[call-arg]
+
+
 def test_an_unknown_kind_is_kept_and_counted(tmp_path: Path) -> None:
     """A newer writer's kind: an UnknownEvent with its fields, one warning per kind."""
     path = tmp_path / FILE_NAME
