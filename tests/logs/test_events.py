@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from mkflight.errors import ReplayError
-from mkflight.logs.events import FILE_NAME, EventsWriter, encode_event, read_events
+from mkflight.logs.events import FILE_NAME, EventsWriter, event_json, read_events
 from mkflight.logs.schema import (
     KINDS,
     UNSET,
@@ -60,14 +60,14 @@ def test_every_kind_round_trips_t_ns_first() -> None:
         Crash(t_ns=12, task="laser", error="RuntimeError()", exception="Traceback..."),
     ]
     for ev in samples:
-        line = encode_event(ev)
+        line = event_json(ev)
         obj = json.loads(line)
         assert list(obj)[:2] == ["t_ns", "event"]
         assert obj["event"] == ev.event
         assert msgspec.convert(obj, KINDS[ev.event], str_keys=True) == ev
-    assert encode_event(Ready(t_ns=-3)) == b'{"t_ns":-3,"event":"ready"}'
-    assert b"exception" not in encode_event(samples[-2])  # absent, not null
-    assert json.loads(encode_event(samples[6]))["moved"] == {"3": 120}
+    assert event_json(Ready(t_ns=-3)) == '{"t_ns":-3,"event":"ready"}'
+    assert "exception" not in event_json(samples[-2])  # absent, not null
+    assert json.loads(event_json(samples[6]))["moved"] == {"3": 120}
 
 
 def test_every_known_kind_has_a_struct_named_in_the_union() -> None:
@@ -94,9 +94,9 @@ def test_format_1_lines_read_typed_and_write_back_byte_for_byte(tmp_path: Path) 
     path.write_text("".join(line + "\n" for line in format1.EVENT_LINES))
     data = read_events(path)
     assert data.warnings == ()
-    assert [encode_event(e) for e in data.events if not isinstance(e, UnknownEvent)] == [
-        line.encode() for line in format1.EVENT_LINES
-    ]
+    assert [event_json(e) for e in data.events if not isinstance(e, UnknownEvent)] == list(
+        format1.EVENT_LINES
+    )
     kinds = [type(e).__name__ for e in data.events]
     assert kinds[:5] == ["Preflight", "Ready", "Scan", "Step", "Scan"]
     assert {"PhaseChange", "Stop", "Failsafe", "End"} <= set(kinds)
