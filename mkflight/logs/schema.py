@@ -91,7 +91,11 @@ def _d(text: str) -> Meta:
 
 
 class FlightEvent(msgspec.Struct, tag_field="event", kw_only=True, frozen=True, gc=False):
-    """One line of ``events.jsonl``: its time, then the kind's own fields."""
+    """One line of ``events.jsonl``: its time, then the kind's own fields.
+
+    Readers match on the subclass; :attr:`event` and :attr:`fields` are the by-name view
+    an :class:`UnknownEvent` shares, for what handles any kind alike (a table of columns).
+    """
 
     t_ns: Annotated[int, _d("the flight clock's time of the event, ns")]
 
