@@ -1,7 +1,9 @@
 """Structured events (structlog): a readable console on a TTY, JSON lines otherwise.
 
 Events go to stderr so that stdout stays clean for a command's data (``--json`` lines).
-The flight daemon adds a file sink for the flight folder's events log.
+They are the operator's log only: the flight folder's ``events.jsonl`` is no sink of
+these, but a format of its own (typed records, :mod:`mkflight.logs.events`), written by
+:class:`~mkflight.flight.flight_logs.FlightLogs`.
 
 Under systemd (``StandardError=journal``, the default) the lines are JSON, each with its
 syslog priority in front (``<4>{"event": ...}``): journald's ``SyslogLevelPrefix=`` strips

@@ -103,6 +103,7 @@ from mkflight.config import Config, load_config
 from mkflight.control.phases import Phase
 from mkflight.conversions import MIN_PER_H, MS_PER_S, NS_PER_MS, NS_PER_S
 from mkflight.errors import ConfigError
+from mkflight.logs.flight_json import to_plain
 from mkflight.sim.pty_server import LATE_NOTE_NS
 
 if TYPE_CHECKING:
@@ -439,7 +440,7 @@ async def soak(cfg: Config, plan: Plan, folder: Path) -> dict[str, Any]:
         }
         for name, v in sim_late.items()
     }
-    s = report.summary
+    s = to_plain(report.summary)  # the summary's keys, as in flight.json
     first, last = rec.samples[0], rec.samples[-1]
     out["flight"] = {
         "exit_code": report.exit_code,

@@ -174,7 +174,7 @@ def _flight_config(flight: FlightData, warnings: list[str]) -> Config:
         warnings.append("no flight.json: the default configuration assumed")
         return Config()
     source = str(flight.path / "flight.json")
-    data = flight.info.get("config")
+    data = flight.info.config
     try:
         return config_from_dict(data, source)
     except ConfigError as err:

@@ -1,4 +1,6 @@
-"""Hover precision from a flight folder: mean, std, RMS and max error (seed §O-P, TABLE IX).
+"""Hover precision from a flight folder: mean, std, RMS and max error.
+
+This is §O-P and TABLE IX of the 2011 QUT CyPhy MikroKopter documentation.
 
 The error is position minus set-point, per axis (x, y in the world frame W, height up;
 SPEC §1), over the HOLD phase of the ``step`` events (``events.jsonl``, SPEC §6). The
@@ -21,6 +23,7 @@ import numpy.typing as npt
 from mkflight.conversions import NS_PER_S
 from mkflight.errors import MkflightError
 from mkflight.logs.events import Event
+from mkflight.logs.schema import Step
 
 SETTLE_S = 3.0
 """Samples count from this long after HOLD begins (as ``sim hover`` measures)."""
@@ -37,7 +40,7 @@ class AnalysisInputError(MkflightError):
 
 @dataclass(frozen=True, slots=True)
 class TableIXRow:
-    """One row of the seed's TABLE IX (hovering), in m; ``kind`` is ``RMS`` or ``std``."""
+    """One row of TABLE IX (hovering), in m; ``kind`` is ``RMS`` or ``std``."""
 
     name: str
     kind: str
@@ -52,7 +55,7 @@ SEED_TABLE_IX: tuple[TableIXRow, ...] = (
     TableIXRow("ETHZ (ASL) 2011", "RMS", 0.12, 0.12, 0.01),
     TableIXRow("QUT 2011", "std", 0.075368, 0.080849, 0.031913),
 )
-"""The seed's TABLE IX hovering rows (Freiburg and Oxford give only Error_Z = ±0.1 m)."""
+"""TABLE IX's hovering rows (Freiburg and Oxford give only Error_Z = ±0.1 m)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -95,10 +98,9 @@ class Precision:
         return out
 
 
-def _num(value: object) -> float:
-    if isinstance(value, int | float) and not isinstance(value, bool):
-        return float(value)
-    return math.nan
+def _num(value: float | None) -> float:
+    """A step's number, NaN for null."""
+    return math.nan if value is None else value
 
 
 def hold_samples(events: Sequence[Event], settle_s: float = SETTLE_S) -> HoldSamples:
@@ -112,11 +114,10 @@ def hold_samples(events: Sequence[Event], settle_s: float = SETTLE_S) -> HoldSam
     sp: list[tuple[float, float, float]] = []
     start_ns: int | None = None
     for e in events:
-        f = e.fields
-        if e.event != "step" or f.get("phase") != "HOLD":
+        if not isinstance(e, Step) or e.phase != "HOLD":
             continue
-        p = (_num(f.get("x_m")), _num(f.get("y_m")), _num(f.get("height_m")))
-        s = (_num(f.get("sp_x_m")), _num(f.get("sp_y_m")), _num(f.get("sp_height_m")))
+        p = (_num(e.x_m), _num(e.y_m), _num(e.height_m))
+        s = (_num(e.sp_x_m), _num(e.sp_y_m), _num(e.sp_height_m))
         if not all(math.isfinite(v) for v in (*p, *s)):
             continue
         if start_ns is None:

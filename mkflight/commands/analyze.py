@@ -1,4 +1,8 @@
-"""``mkflight analyze precision|latency LOGDIR``: the seed's §O-P and §F analyses of a flight."""
+"""``mkflight analyze precision|latency LOGDIR``: two analyses of a flight.
+
+They are §O-P (hover precision, TABLE IX) and §F (response lag, Fig 8) of
+the 2011 QUT CyPhy MikroKopter documentation.
+"""
 
 from __future__ import annotations
 
@@ -13,6 +17,7 @@ if TYPE_CHECKING:
     import numpy as np
 
     from mkflight.analysis.latency import LagCurve
+    from mkflight.logs.schema import KnownEvent
 
 # The analyses (numpy, the log readers) are imported inside the functions that run them:
 # every mkflight call imports this module to build its parser.
@@ -49,7 +54,7 @@ def _read_text(path: Path) -> str:
 
 
 def cmd_analyze_precision(*, log_dir: str, truth: str | None, as_json: bool) -> int:
-    """Print the hover precision of a flight folder beside the seed's TABLE IX (§O-P).
+    """Print the hover precision of a flight folder beside TABLE IX (§O-P).
 
     Args:
         log_dir: the flight folder (its ``events.jsonl``: set-points, estimates, phases).
@@ -110,17 +115,26 @@ def cmd_analyze_precision(*, log_dir: str, truth: str | None, as_json: bool) -> 
     return 0
 
 
-def _event_times_s(folder: Path, event: str, rows: int) -> np.ndarray | None:
-    """The ``event`` events' times (s), if the events log has exactly one per table row."""
+def _row_times_s(folder: Path, kind: type[KnownEvent], rows: int) -> np.ndarray | None:
+    """The table rows' times (s) from their events, if the log has exactly one per row.
+
+    A TABLE IV row's event is its ``Step``; a TABLE III row's the ``Scan`` that made it
+    (one with an ``index``: a scan that made no row has none).
+    """
     import numpy as np
 
     from mkflight.logs.events import FILE_NAME as EVENTS_FILE
     from mkflight.logs.events import read_events
+    from mkflight.logs.schema import Scan
 
     path = folder / EVENTS_FILE
     if not path.is_file() or path.stat().st_size == 0:
         return None
-    times = [e.t_ns for e in read_events(path).events if e.event == event]
+    times = [
+        e.t_ns
+        for e in read_events(path).events
+        if isinstance(e, kind) and not (isinstance(e, Scan) and e.index is None)
+    ]
     if len(times) != rows:
         return None
     return np.asarray(times, dtype=np.float64) / NS_PER_S
@@ -135,7 +149,7 @@ def _print_curve(name: str, curve: LagCurve, period_s: float) -> None:
 
 
 def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
-    """Print the vehicle's response lag by cross-correlation (seed §F, Fig 8).
+    """Print the vehicle's response lag by cross-correlation (§F, Fig 8).
 
     Args:
         log_dir: the flight folder (its ``imu_50ms.log`` and ``laser_100ms.log``; the
@@ -157,6 +171,7 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
         estimate_latency,
     )
     from mkflight.analysis.precision import AnalysisInputError
+    from mkflight.logs.schema import Scan, Step
     from mkflight.logs.table3 import FILE_NAME as TABLE3_FILE
     from mkflight.logs.table3 import read_table3
     from mkflight.logs.table4 import FILE_NAME as TABLE4_FILE
@@ -170,8 +185,8 @@ def cmd_analyze_latency(*, log_dir: str, as_json: bool) -> int:
             msg = f"{folder / name}: {len(rows)} rows, too few to correlate"
             raise AnalysisInputError(msg)
     # The rows' times: the events' when there is one per row; else the indices' nominal ones.
-    t4_s = _event_times_s(folder, "step", len(t4))
-    t3_s = _event_times_s(folder, "scan", len(t3))
+    t4_s = _row_times_s(folder, Step, len(t4))
+    t3_s = _row_times_s(folder, Scan, len(t3))
     if t4_s is None or t3_s is None:
         t4_s = np.asarray(t4["index"], dtype=np.float64) * IMU_PERIOD_S
         t3_s = (np.asarray(t3["index"], dtype=np.float64) - 1.0) * LASER_PERIOD_S

@@ -14,6 +14,7 @@ from mkflight.errors import ConfigError, FlightError, MkflightError, PortNotFoun
 
 if TYPE_CHECKING:
     from mkflight.config import Config
+    from mkflight.logs.schema import FlightSummary
 
 
 def _folder(cfg: Config, log_dir: str | None) -> Path:
@@ -100,7 +101,7 @@ async def _fly(
     duration_s: float | None,
     config_path: str | None,
     overrides: list[str],
-) -> tuple[int, str, dict[str, object]]:
+) -> tuple[int, str, FlightSummary]:
     from mkflight.flight.app import FlightApp, FlightOptions
     from mkflight.flight.flight_logs import TRUTH_FILE
     from mkflight.flight.sim_process import SimProcess, start_sim
@@ -135,34 +136,31 @@ async def _fly(
 
 
 def _print_summary(
-    folder: Path, reason: str, summary: dict[str, object], truth: dict[str, float | int] | None
+    folder: Path, reason: str, summary: FlightSummary, truth: dict[str, float | int] | None
 ) -> None:
     """The end-of-flight lines: why it ended, precision, timing, CPU, failsafes."""
     print(f"flight folder: {folder}")
-    print(f"ended: {reason} (phase {summary.get('final_phase')})")
+    print(f"ended: {reason} (phase {summary.final_phase})")
     if truth is not None:
         print(
             f"hold precision (truth): std x {truth['std_x_m']:.4f} m  "
             f"y {truth['std_y_m']:.4f} m  z {truth['std_z_m']:.4f} m"
         )
-    t = summary.get("timing")
-    if isinstance(t, dict) and t.get("steps"):
+    t = summary.timing
+    if t.steps:
         print(
-            f"{t['steps']} steps: command latency median {t['latency_median_ms']:.2f} ms, "
-            f"p99 {t['latency_p99_ms']:.2f} ms; added jitter p99 {t['added_jitter_p99_ms']:.2f} ms"
+            f"{t.steps} steps: command latency median {t.latency_median_ms:.2f} ms, "
+            f"p99 {t.latency_p99_ms:.2f} ms; added jitter p99 {t.added_jitter_p99_ms:.2f} ms"
         )
         print(
-            f"DebugOut interval {t['period_median_ms']:.1f} ms, p99 deviation "
-            f"{t['jitter_p99_ms']:.1f} ms, {t['missed_steps']} missed"
+            f"DebugOut interval {t.period_median_ms:.1f} ms, p99 deviation "
+            f"{t.jitter_p99_ms:.1f} ms, {t.missed_steps} missed"
         )
-    matcher = summary.get("matcher")
-    per_scan = matcher.get("cpu_ms_per_scan") if isinstance(matcher, dict) else None
     print(
-        f"CPU: daemon {summary.get('cpu_percent_of_one_core')} % of one core; scan matcher "
-        f"{per_scan} ms a scan"
+        f"CPU: daemon {summary.cpu_percent_of_one_core} % of one core; scan matcher "
+        f"{summary.matcher.cpu_ms_per_scan} ms a scan"
     )
-    failsafes = summary.get("failsafes")
-    unplanned = [f for f in failsafes if "stop_" not in f] if isinstance(failsafes, list) else []
+    unplanned = [f for f in summary.failsafes if "stop_" not in f]
     print("failsafes: " + ("; ".join(unplanned) if unplanned else "none"))
 
 
@@ -188,7 +186,7 @@ def cmd_fly(
     import asyncio
 
     from mkflight.config import load_config
-    from mkflight.logs.flight_json import json_safe
+    from mkflight.logs.flight_json import json_safe, to_plain
 
     if not hover:
         msg = "fly needs a mission: --hover (the only one so far)"
@@ -228,14 +226,8 @@ def cmd_fly(
     )
     truth = _truth_precision(folder)  # when a simulator wrote its truth there
     if as_json:
-        print(
-            json.dumps(
-                json_safe(
-                    {"log_dir": str(folder), "reason": reason, "truth_precision": truth, **summary}
-                ),
-                allow_nan=False,
-            )
-        )
+        head = {"log_dir": str(folder), "reason": reason, "truth_precision": truth}
+        print(json.dumps(json_safe({**head, **to_plain(summary)}), allow_nan=False))
     else:
         _print_summary(folder, reason, summary, truth)
     if code != 0:

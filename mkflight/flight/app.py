@@ -30,7 +30,6 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import structlog
 
@@ -59,6 +58,15 @@ from mkflight.flight.step import FlightCore, ImuStepOutput
 from mkflight.flight.stop import StopLatch, stop_signals
 from mkflight.flight.summary import MatcherFigures, ProcessTimes, flight_summary
 from mkflight.flight.tasks import laser_task, mk_task, supervise, watchdog_task
+from mkflight.logs.schema import (
+    FlightSummary,
+    KnownEvent,
+    Preflight,
+    PreflightFigures,
+    Ready,
+    Stop,
+    from_plain,
+)
 from mkflight.msgs import ImuSample
 from mkflight.safety.failsafe import StopRequest
 from mkflight.safety.pilot import PilotWatch
@@ -90,7 +98,7 @@ class FlightReport:
 
     exit_code: int
     reason: str
-    summary: dict[str, Any]
+    summary: FlightSummary
 
 
 class FlightApp:
@@ -190,7 +198,8 @@ class FlightApp:
         )
         self.inbox.put(first)
         logs.set_fc_version(version.text)
-        self.event(self.clock.now_ns(), "preflight", **report.as_dict())
+        figures = from_plain(PreflightFigures, report.as_dict())
+        self.event(Preflight.of(self.clock.now_ns(), figures))
         self.preflight = report
         return report
 
@@ -210,12 +219,12 @@ class FlightApp:
         # it there: the request's time alone does not say whether that step's DebugOut,
         # read just before, had been stepped yet).
         steps = self.core.counters.imu_steps if self.start_ns else None
-        self.event(now, "stop", request=request.value, reason=reason, steps=steps)
+        self.event(Stop(t_ns=now, request=request.value, reason=reason, steps=steps))
 
-    def event(self, t_ns: int, event: str, **fields: Any) -> None:
+    def event(self, event: KnownEvent) -> None:
         """One ``events.jsonl`` line (nothing before the folder exists or after a failure)."""
         if self.ports.logs is not None:
-            self.ports.logs.event(t_ns, event, **fields)
+            self.ports.logs.event(event)
 
     async def fly(self) -> FlightReport:
         """Pre-flight, READY, the tasks, and the single way out (module docstring)."""
@@ -237,7 +246,7 @@ class FlightApp:
                     await self.policy.before_ready()
                     self.notifier.ready()
                     self.start_ns = self.clock.now_ns()
-                    self.event(self.start_ns, "ready")  # steps use DebugOut from here on
+                    self.event(Ready(t_ns=self.start_ns))  # steps use DebugOut from here on
                     error = await self._run_tasks()
             except Exception as err:  # every failure leaves through the shutdown
                 error = err
@@ -248,8 +257,8 @@ class FlightApp:
         if error is not None:
             return FlightReport(1, f"{type(error).__name__}: {error}", summary)
         if self.ports.logs is not None and self.ports.logs.error is not None:  # logs lost
-            return FlightReport(1, summary["end_reason"], summary)
-        return FlightReport(0, summary["end_reason"], summary)
+            return FlightReport(1, summary.end_reason, summary)
+        return FlightReport(0, summary.end_reason, summary)
 
     def _on_signal(self, request: StopRequest, name: str) -> None:
         """SIGINT/SIGTERM/SIGHUP: land. After SIGHUP the terminal is gone: no status line."""
@@ -329,7 +338,7 @@ class FlightApp:
 
     # ----- the way out --------------------------------------------------------------------
 
-    async def _shutdown(self, error: BaseException | None, started: ProcessTimes) -> dict[str, Any]:
+    async def _shutdown(self, error: BaseException | None, started: ProcessTimes) -> FlightSummary:
         """Release, close the ports and the matcher, write the summary, close the logs."""
         self.notifier.stopping()
         self.gc_watch.uninstall()
@@ -344,7 +353,7 @@ class FlightApp:
 
     def _summary(
         self, error: BaseException | None, released: bool, started: ProcessTimes
-    ) -> dict[str, Any]:
+    ) -> FlightSummary:
         """The ``flight.json`` summary, from what each collaborator measured."""
         end = ProcessTimes.now()
         now_ns = self.clock.now_ns()
@@ -367,6 +376,6 @@ class FlightApp:
             preflight=self.preflight,
             mk_link=None if link is None else link.stats.summary(),
             laser_link=None if driver is None else driver.stats,
-            raw=None if logs is None else logs.raw_summary(),
+            raw=None if logs is None else logs.raw_counters(),
             log_error=None if logs is None else logs.error,
         )

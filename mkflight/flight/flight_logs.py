@@ -26,6 +26,15 @@ from mkflight.flight.step import ImuStepOutput
 from mkflight.logs.events import EventsWriter
 from mkflight.logs.flight_json import FlightInfo, new_flight_info, with_summary, write_flight_json
 from mkflight.logs.raw import RawRecorder, create_buffered, create_unbuffered
+from mkflight.logs.schema import (
+    End,
+    Failsafe,
+    FlightSummary,
+    KnownEvent,
+    PhaseChange,
+    RawCounters,
+    Step,
+)
 from mkflight.logs.table3 import Table3Row, Table3Writer
 from mkflight.logs.table4 import Table4Writer
 from mkflight.msgs import ImuSample
@@ -109,17 +118,17 @@ class FlightLogs:
             self.error = err
             self.on_error(err)
 
-    def event(self, t_ns: int, event: str, **fields: Any) -> None:
+    def event(self, event: KnownEvent) -> None:
         """One ``events.jsonl`` line (nothing after a write error or after closing)."""
         if self.error is not None or self.events.closed:
             return
         try:
-            self.events.write(t_ns, event, **fields)
+            self.events.write(event)
         except OSError as err:
             self._failed(err)
         except (TypeError, ValueError) as err:  # a value JSON cannot hold: a bug, not a stop
             self.events_dropped += 1
-            log.error("event not written", event_name=event, error=str(err))
+            log.error("event not written", event_name=event.event, error=str(err))
 
     def row3(self, row: Table3Row) -> None:
         """One TABLE III row."""
@@ -140,26 +149,27 @@ class FlightLogs:
                 self._failed(err)
         est = out.estimate
         self.event(
-            sample.t_ns,
-            "step",
-            x_m=round(est.x_m, 4),
-            y_m=round(est.y_m, 4),
-            sp_x_m=None if sp is None else round(sp.x_m, 4),
-            sp_y_m=None if sp is None else round(sp.y_m, 4),
-            sp_height_m=None if sp is None else round(sp.height_m, 4),
-            height_m=round(est.height_m, 4),
-            vz_up_mps=round(est.vz_up_mps, 4),
-            gas_counts=out.command.gas_counts,
-            battery_v=round(sample.battery_v, 2),
-            phase=out.phase.name,
-            action=out.action.name,
-            latency_ms=round(latency_ms, 3),
+            Step(
+                t_ns=sample.t_ns,
+                x_m=round(est.x_m, 4),
+                y_m=round(est.y_m, 4),
+                sp_x_m=None if sp is None else round(sp.x_m, 4),
+                sp_y_m=None if sp is None else round(sp.y_m, 4),
+                sp_height_m=None if sp is None else round(sp.height_m, 4),
+                height_m=round(est.height_m, 4),
+                vz_up_mps=round(est.vz_up_mps, 4),
+                gas_counts=out.command.gas_counts,
+                battery_v=round(sample.battery_v, 2),
+                phase=out.phase.name,
+                action=out.action.name,
+                latency_ms=round(latency_ms, 3),
+            )
         )
         for e in out.failsafe_events:
             cause = getattr(e.cause, "value", "")
-            self.event(e.t_ns, "failsafe", action=e.action.name, cause=cause)
+            self.event(Failsafe(t_ns=e.t_ns, action=e.action.name, cause=cause))
         for pe in out.phase_events:
-            self.event(pe.t_ns, "phase", to=pe.to_phase.name, reason=pe.reason)
+            self.event(PhaseChange(t_ns=pe.t_ns, to=pe.to_phase.name, reason=pe.reason))
 
     def set_fc_version(self, text: str) -> None:
         """Put the FC's version into ``flight.json`` (known after the pre-flight)."""
@@ -169,22 +179,23 @@ class FlightLogs:
         except OSError as err:
             self._failed(err)
 
-    def raw_summary(self) -> dict[str, Any]:
-        """The recorders' counters, for the summary."""
-        return {
-            name: {
-                "records": rec.records,
-                "bytes_read": rec.bytes_read,
-                "bytes_written": rec.bytes_written,
-                "dropped": rec.dropped,
-                "error": rec.error and str(rec.error),
-            }
-            for name, rec in (("mk_raw", self.mk_raw), ("laser_raw", self.laser_raw))
-        }
+    def raw_counters(self) -> tuple[RawCounters, RawCounters]:
+        """The recorders' counters for the summary: ``mk.raw``'s, ``laser.raw``'s."""
+        mk, laser = (
+            RawCounters(
+                records=rec.records,
+                bytes_read=rec.bytes_read,
+                bytes_written=rec.bytes_written,
+                dropped=rec.dropped,
+                error=None if rec.error is None else str(rec.error),
+            )
+            for rec in (self.mk_raw, self.laser_raw)
+        )
+        return mk, laser
 
-    def close(self, t_ns: int, summary: dict[str, Any]) -> None:
+    def close(self, t_ns: int, summary: FlightSummary) -> None:
         """The ``end`` event, every file flushed and closed, ``flight.json``'s summary."""
-        self.event(t_ns, "end", exit_reason=summary.get("end_reason"))
+        self.event(End(t_ns=t_ns, exit_reason=summary.end_reason))
         self._close_all()
         with contextlib.suppress(OSError):  # a full disk: the tables hold what was written
             write_flight_json(self.folder, with_summary(self.info, summary))

@@ -28,6 +28,7 @@ from mkflight.flight.status import status_line
 from mkflight.flight.step import FlightCore, ImuStepOutput, PilotSticks
 from mkflight.flight.stop import StopLatch
 from mkflight.flight.taps import PortTaps
+from mkflight.logs.schema import PilotOverride, Scan
 from mkflight.mk.messages import ExternControl
 from mkflight.msgs import ImuSample, plausible_imu
 from mkflight.safety.failsafe import StopRequest
@@ -141,26 +142,27 @@ class MkStep:
             if row is not None:
                 self._logs.row3(row)
             self._logs.event(
-                r.scan_t_ns,
-                "scan",
-                index=None if row is None else row.index,
-                step=step,
-                seq=r.seq,
-                valid=r.pose is not None,
-                got_ns=got_ns,
-                x_m=None if r.pose is None else r.pose.x_m,
-                y_m=None if r.pose is None else r.pose.y_m,
-                yaw_rad=None if r.pose is None else r.pose.yaw_rad,
-                height_m=r.height_m,
-                degenerate=r.degenerate,
-                match_ms=round(r.compute_s * MS_PER_S, 3),
+                Scan(
+                    t_ns=r.scan_t_ns,
+                    index=None if row is None else row.index,
+                    step=step,
+                    seq=r.seq,
+                    valid=r.pose is not None,
+                    got_ns=got_ns,
+                    x_m=None if r.pose is None else r.pose.x_m,
+                    y_m=None if r.pose is None else r.pose.y_m,
+                    yaw_rad=None if r.pose is None else r.pose.yaw_rad,
+                    height_m=r.height_m,
+                    degenerate=r.degenerate,
+                    match_ms=round(r.compute_s * MS_PER_S, 3),
+                )
             )
 
     def _pilot_override(self) -> bool:
         """The newest 'P' answer through the pilot watch (a moved stick: latched)."""
         if self._commands.override_now():
             pilot = self._commands.pilot
-            self._logs.event(self._clock.now_ns(), "pilot_override", moved=dict(pilot.moved))
+            self._logs.event(PilotOverride(t_ns=self._clock.now_ns(), moved=dict(pilot.moved)))
         return self._commands.pilot.override
 
     def blind_command(self) -> ExternControl | None:

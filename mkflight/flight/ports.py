@@ -14,7 +14,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 from mkflight.clock import Clock
 from mkflight.config import Config
@@ -23,6 +23,7 @@ from mkflight.flight.links import open_laser, open_mk
 from mkflight.flight.policy import FlightPolicy
 from mkflight.flight.stats import StepStats
 from mkflight.flight.taps import PortTaps
+from mkflight.logs.schema import FlightSummary
 from mkflight.mk.link import MkLink
 from mkflight.urg.driver import UrgDriver
 
@@ -114,7 +115,7 @@ class FlightPorts:
             with contextlib.suppress(Exception):
                 await self.driver.close()
 
-    def close_logs(self, summary: dict[str, Any]) -> None:
+    def close_logs(self, summary: FlightSummary) -> None:
         """The ``end`` event, every file flushed and closed, ``flight.json``'s summary."""
         if self.logs is not None:
             self.logs.close(self._clock.now_ns(), summary)

@@ -13,6 +13,21 @@ from typing import Any, NamedTuple
 from mkflight.control.phases import Phase
 from mkflight.conversions import MS_PER_S
 from mkflight.flight.preflight import PreflightReport
+from mkflight.logs.schema import (
+    UNSET,
+    CpuInHold,
+    FlightSummary,
+    GcStats,
+    LaserLinkStats,
+    Learned,
+    MatcherStats,
+    MkLinkStats,
+    PrecisionEstimate,
+    PreflightFigures,
+    RawCounters,
+    Timing,
+    from_plain,
+)
 
 
 class ProcessTimes(NamedTuple):
@@ -47,23 +62,23 @@ def flight_summary(
     stop_reason: str,
     phase: Phase,
     failsafes: Sequence[str],
-    learned: dict[str, object],
+    learned: dict[str, Any],
     released: bool,
     wall_s: float,
     cpu_s: float,
     flight_s: float,
-    timing: dict[str, float | int],
+    timing: dict[str, Any],
     hold_cpu: dict[str, float] | None,
-    precision: dict[str, float | int] | None,
-    gc: dict[str, float | int],
+    precision: dict[str, Any] | None,
+    gc: dict[str, Any],
     matcher: MatcherFigures,
     preflight: PreflightReport | None,
-    mk_link: dict[str, int | float | None] | None,
+    mk_link: dict[str, Any] | None,
     laser_link: object | None,
-    raw: dict[str, Any] | None,
+    raw: tuple[RawCounters, RawCounters] | None,
     log_error: OSError | None,
-) -> dict[str, Any]:
-    """The ``flight.json`` summary.
+) -> FlightSummary:
+    """The ``flight.json`` summary (:class:`~mkflight.logs.schema.FlightSummary`).
 
     Args:
         error: what ended the flight with exit 1 (None: it ended as asked).
@@ -83,42 +98,37 @@ def flight_summary(
         preflight: the pre-flight's report (None: it did not complete).
         mk_link: the MK link's counters (None: never opened).
         laser_link: the URG driver's stats (None: never opened).
-        raw: the raw recorders' counters (None: no flight folder).
+        raw: the raw recorders' counters, ``mk.raw``'s and ``laser.raw``'s (None: no
+            flight folder; then ``log_error`` is left out too).
         log_error: the write error that stopped the logs (None: none).
     """
-    out: dict[str, Any] = {
-        "end_reason": str(error)
-        if error is not None
-        else end_reason(stop_reason, failsafes, phase),
-        "exit_code": 0 if error is None and not log_error else 1,
-        "duration_s": round(wall_s, 3),
-        "flight_s": round(flight_s, 3),
-        "final_phase": phase.name,
-        "released": released,
-        "failsafes": list(failsafes),
-        "learned": learned,
-        "timing": timing,
-        "cpu_percent_of_one_core": round(100.0 * cpu_s / wall_s, 2) if wall_s > 0 else None,
-        "cpu_percent_in_hold": hold_cpu,
-        "precision_estimate": precision,
-        "gc": gc,
-        "matcher": {
-            "scans": matcher.scans,
-            "cpu_ms_per_scan": round(MS_PER_S * matcher.cpu_s / matcher.scans, 3)
+    return FlightSummary(
+        end_reason=str(error) if error is not None else end_reason(stop_reason, failsafes, phase),
+        exit_code=0 if error is None and not log_error else 1,
+        duration_s=round(wall_s, 3),
+        flight_s=round(flight_s, 3),
+        final_phase=phase.name,
+        released=released,
+        failsafes=list(failsafes),
+        learned=from_plain(Learned, learned),
+        timing=from_plain(Timing, timing),
+        cpu_percent_of_one_core=round(100.0 * cpu_s / wall_s, 2) if wall_s > 0 else None,
+        cpu_percent_in_hold=None if hold_cpu is None else from_plain(CpuInHold, hold_cpu),
+        precision_estimate=None if precision is None else from_plain(PrecisionEstimate, precision),
+        gc=from_plain(GcStats, gc),
+        matcher=MatcherStats(
+            scans=matcher.scans,
+            cpu_ms_per_scan=round(MS_PER_S * matcher.cpu_s / matcher.scans, 3)
             if matcher.scans
             else None,
-        },
-    }
-    if preflight is not None:
-        out["preflight"] = preflight.as_dict()
-    if mk_link is not None:
-        out["mk_link"] = mk_link
-    if laser_link is not None:
-        out["laser_link"] = _plain(laser_link)
-    if raw is not None:
-        out.update(raw)
-        out["log_error"] = log_error and str(log_error)
-    return out
+        ),
+        preflight=UNSET if preflight is None else from_plain(PreflightFigures, preflight.as_dict()),
+        mk_link=UNSET if mk_link is None else from_plain(MkLinkStats, mk_link),
+        laser_link=UNSET if laser_link is None else from_plain(LaserLinkStats, _plain(laser_link)),
+        mk_raw=UNSET if raw is None else raw[0],
+        laser_raw=UNSET if raw is None else raw[1],
+        log_error=UNSET if raw is None else None if log_error is None else str(log_error),
+    )
 
 
 def _plain(stats: object) -> dict[str, Any]:

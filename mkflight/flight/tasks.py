@@ -34,6 +34,14 @@ from mkflight.flight.matcher_worker import MatcherError, MatcherWorker
 from mkflight.flight.mk_step import MkStep, RequestStop
 from mkflight.flight.stop import StopDeadlineError, StopLatch
 from mkflight.flight.taps import PortTaps
+from mkflight.logs.schema import (
+    UNSET,
+    Crash,
+    LaserLost,
+    LaserReopened,
+    LaserSilent,
+    StopDeadline,
+)
 from mkflight.mk.link import MkLink
 from mkflight.safety.failsafe import StopRequest
 from mkflight.urg.driver import UrgDriver
@@ -114,13 +122,13 @@ async def laser_task(
             scan = await driver.next_scan(timeout_s)
         except LinkError as err:
             if driver.error is None:  # no scan in time: the driver keeps restarting
-                logs.event(clock.now_ns(), "laser_silent", error=str(err))
+                logs.event(LaserSilent(t_ns=clock.now_ns(), error=str(err)))
                 continue  # and the step's laser staleness check lands the vehicle
-            logs.event(clock.now_ns(), "laser_lost", error=str(err))
+            logs.event(LaserLost(t_ns=clock.now_ns(), error=str(err)))
             taps.mark("laser", "c", str(err))
             log.warning("laser lost", error=str(err))
             await driver.reopen(max_wait_s=LASER_REOPEN_S)
-            logs.event(clock.now_ns(), "laser_reopened")
+            logs.event(LaserReopened(t_ns=clock.now_ns()))
             continue
         if not scan_wanted(scan.seq):
             continue
@@ -179,7 +187,7 @@ async def supervise(
                 others.discard(task)
                 exc = task.exception()
                 if isinstance(exc, StopDeadlineError):  # release now: the shutdown does it
-                    logs.event(clock.now_ns(), "stop_deadline", error=str(exc))
+                    logs.event(StopDeadline(t_ns=clock.now_ns(), error=str(exc)))
                     return exc
                 if exc is not None and crash is None:
                     crash = exc
@@ -198,11 +206,12 @@ def _task_crashed(name: str, exc: BaseException, logs: FlightLogs, clock: Clock)
     """The laser or watchdog task crashed: its event and log line."""
     bug = not isinstance(exc, MkflightError)  # its stack is wanted
     logs.event(
-        clock.now_ns(),
-        "crash",
-        task=name,
-        error=repr(exc),
-        **({"exception": exception_text(exc)} if bug else {}),
+        Crash(
+            t_ns=clock.now_ns(),
+            task=name,
+            error=repr(exc),
+            exception=exception_text(exc) if bug else UNSET,
+        )
     )
     log.error("task crashed", task=name, error=repr(exc), exc_info=exc if bug else None)
 
@@ -210,18 +219,19 @@ def _task_crashed(name: str, exc: BaseException, logs: FlightLogs, clock: Clock)
 def _mk_ended(exc: BaseException | None, logs: FlightLogs, clock: Clock) -> BaseException | None:
     """Why the MK task ended (None: released as the phase machine asked), logged."""
     if isinstance(exc, StopDeadlineError):
-        logs.event(clock.now_ns(), "stop_deadline", error=str(exc))
+        logs.event(StopDeadline(t_ns=clock.now_ns(), error=str(exc)))
         return exc
     if exc is not None:
         if isinstance(exc, MkflightError):  # a failure named to the operator
-            logs.event(clock.now_ns(), "crash", task="mk-step", error=repr(exc))
+            logs.event(Crash(t_ns=clock.now_ns(), task="mk-step", error=repr(exc)))
             return exc
         logs.event(  # a bug: its stack for whoever reads the logs
-            clock.now_ns(),
-            "crash",
-            task="mk-step",
-            error=repr(exc),
-            exception=exception_text(exc),
+            Crash(
+                t_ns=clock.now_ns(),
+                task="mk-step",
+                error=repr(exc),
+                exception=exception_text(exc),
+            )
         )
         log.error("task crashed", task="mk-step", exc_info=exc)
         return exc

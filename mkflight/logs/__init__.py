@@ -1,9 +1,12 @@
 """Flight logs (SPEC §6): one module per format, reader and writer together.
 
-* :mod:`~mkflight.logs.table3` -- ``laser_100ms.log`` (seed TABLE III, 10 columns).
-* :mod:`~mkflight.logs.table4` -- ``imu_50ms.log`` (seed TABLE IV, 14 columns).
+* :mod:`~mkflight.logs.table3` -- ``laser_100ms.log`` (TABLE III of the 2011 QUT CyPhy
+  MikroKopter documentation, 10 columns).
+* :mod:`~mkflight.logs.table4` -- ``imu_50ms.log`` (its TABLE IV, 14 columns).
 * :mod:`~mkflight.logs.flight_json` -- ``flight.json`` (start, versions, config, summary).
 * :mod:`~mkflight.logs.events` -- ``events.jsonl`` (everything else, JSON lines).
+* :mod:`~mkflight.logs.schema` -- the typed records: one Struct per event kind, and
+  ``flight.json``'s summary (the README's schema section is generated from them).
 * :mod:`~mkflight.logs.flight` -- :func:`load_flight`: a whole folder as numpy arrays
   with named columns, for your own analysis.
 
@@ -31,21 +34,37 @@ from mkflight.logs.flight_json import (
     with_summary,
     write_flight_json,
 )
+from mkflight.logs.schema import (
+    KINDS,
+    FlightEvent,
+    FlightSummary,
+    HoverSummary,
+    KnownEvent,
+    UnknownEvent,
+    UnknownSummary,
+)
 from mkflight.logs.table3 import Table3Row, Table3Writer, read_table3
 from mkflight.logs.table4 import Table4Row, Table4Writer, read_table4
 
 __all__ = [
+    "KINDS",
     "LOG_FORMAT",
     "Event",
     "EventsData",
     "EventsWriter",
     "FlightData",
+    "FlightEvent",
     "FlightInfo",
+    "FlightSummary",
+    "HoverSummary",
+    "KnownEvent",
     "Table3Row",
     "Table3Writer",
     "Table4Row",
     "Table4Writer",
     "TableData",
+    "UnknownEvent",
+    "UnknownSummary",
     "event_table",
     "extern_control_frames",
     "extern_controls",

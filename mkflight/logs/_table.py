@@ -1,4 +1,6 @@
-"""The text-table format shared by TABLE III and TABLE IV (seed §E, SPEC §6).
+"""The text-table format of TABLE III and TABLE IV (SPEC §6).
+
+Both tables are §E of the 2011 QUT CyPhy MikroKopter documentation.
 
 One header line of column names separated by single spaces, then one row per line:
 space-separated values, floats as Python's shortest round-trip ``repr`` (``0.1``,
@@ -155,7 +157,7 @@ def _int(text: str) -> int:
 
 
 def read_table(path: str | Path, fmt: TableFormat) -> TableData:
-    """Read a table file written by :class:`TableWriter` (or the seed's system).
+    """Read a table file written by :class:`TableWriter` (or by the documented system).
 
     Blank lines are skipped; a last line without newline is dropped (``truncated``).
 

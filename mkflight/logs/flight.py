@@ -13,7 +13,7 @@ records and the truth rows alike, so all arrays plot on one axis. ``t0_ns`` is t
 ``start_t_ns`` of the ``mk.raw`` header (the recorders start as the folder is created,
 before the links open), else of ``laser.raw``, else the first event's ``t_ns``, else None.
 The table rows carry no time: a row's time is its event's (``step`` for TABLE IV,
-``scan`` for TABLE III), NaN if it has none; a folder without ``events.jsonl`` (the seed's
+``scan`` for TABLE III), NaN if it has none; a folder without ``events.jsonl`` (the system
 system wrote only the two tables) gets the nominal ``index`` times the step period
 (0.05 s, 0.1 s) instead.
 
@@ -27,11 +27,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
 import msgspec
+import msgspec.inspect as mi
 import numpy as np
 import numpy.typing as npt
 
@@ -44,6 +45,7 @@ from mkflight.logs._file import read_lines
 from mkflight.logs._table import TableData
 from mkflight.logs.events import Event, read_events
 from mkflight.logs.raw import RawRecording, read_raw
+from mkflight.logs.schema import KINDS, KnownEvent, Scan, Step, UnknownSummary
 from mkflight.mk.codec import ADDR_FC, Frame, FrameParser, encode_frame
 from mkflight.mk.messages import CMD_DEBUG_ANSWER, CMD_EXTERN, DebugOut, ExternControl
 from mkflight.mk.units import DEFAULT_CALIBRATION, MkCalibration, imu_from_debug
@@ -70,7 +72,7 @@ _RAW_NAME: Final = {"mk": "mk.raw", "laser": "laser.raw"}
 MK_RAW: Final = "mk.raw"
 LASER_RAW: Final = "laser.raw"
 TRUTH: Final = "truth.txt"  # as mkflight.flight.flight_logs.TRUTH_FILE
-IMU_PERIOD_S: Final = 0.05  # TABLE IV: one row per 50 ms step (the seed's rate)
+IMU_PERIOD_S: Final = 0.05  # TABLE IV: one row per 50 ms step (the documented rate)
 LASER_PERIOD_S: Final = 0.1  # TABLE III: one row per 100 ms laser step
 MIN_TEXT: Final = 16  # string columns are at least 'U16'
 
@@ -88,19 +90,28 @@ SAMPLE_DTYPE: Final = np.dtype(
 #: ``truth``: the simulator's vehicle position, world x and y and height up (m).
 TRUTH_DTYPE: Final = np.dtype([(k, np.float64) for k in ("t_s", "x_m", "y_m", "height_m")])
 
-# The fields the flight writes in its 'step' and 'scan' events (flight_logs.py, app.py):
-# always columns, in this order; 'f' numbers (float64: NaN for null, booleans 1.0/0.0),
-# 'U' strings. Other scalar fields found in the events follow as extra columns.
-_STEP_FIELDS: Final = ("x_m", "y_m", "sp_x_m", "sp_y_m", "sp_height_m", "height_m", "vz_up_mps")
-_SCHEMAS: Final[dict[str, tuple[tuple[str, str], ...]]] = {
-    "step": (
-        *((k, "f") for k in (*_STEP_FIELDS, "gas_counts", "battery_v")),
-        *(("phase", "U"), ("action", "U"), ("latency_ms", "f")),
-    ),
-    "scan": tuple(
-        (k, "f") for k in ("index", "step", "seq", "valid", "height_m", "degenerate", "match_ms")
-    ),
-}
+_COLUMN_KIND: Final = {mi.IntType: "f", mi.FloatType: "f", mi.BoolType: "f", mi.StrType: "U"}
+
+
+def _columns_of(cls: type[KnownEvent]) -> tuple[tuple[str, str], ...]:
+    """A kind's scalar fields after ``t_ns``, in order: 'f' numbers and booleans, 'U' text.
+
+    Lists and objects (``pilot_override``'s ``moved``) stay in the event records only.
+    """
+    info = mi.type_info(cls)
+    assert isinstance(info, mi.StructType)
+    out: list[tuple[str, str]] = []
+    for f in info.fields[1:]:
+        t = f.type.type if isinstance(f.type, mi.Metadata) else f.type
+        members = t.types if isinstance(t, mi.UnionType) else (t,)
+        kinds = {_COLUMN_KIND.get(type(m)) for m in members if not isinstance(m, mi.NoneType)}
+        if len(kinds) == 1 and None not in kinds:
+            out.append((f.encode_name, kinds.pop() or ""))
+    return tuple(out)
+
+
+#: Each kind's columns: always there, in the Struct's order, whatever the events hold.
+_SCHEMAS: Final = {name: _columns_of(cls) for name, cls in KINDS.items()}
 _CAL_KEYS: Final = (  # config.mk keys that MkCalibration.from_config uses
     *("angle_unit_deg", "acc_nick_counts_per_g", "acc_roll_counts_per_g"),
     *("acc_z_counts_per_mps2", "acc_z_offset_mps2", "voltage_unit_v", "g_mps2"),
@@ -113,22 +124,26 @@ class FlightData:
 
     Attributes:
         path: the folder.
-        t0_ns: the flight clock's ``t_ns`` at ``t_s`` = 0; None for a seed folder.
+        t0_ns: the flight clock's ``t_ns`` at ``t_s`` = 0; None for a tables-only folder.
         imu: TABLE IV rows, fields named as its header (``"AccX"``, ``"index"``...).
         imu_t_s: each ``imu`` row's time: its ``step`` event's (the k-th step event is
             the row of index k), NaN if none; nominal ``index * 0.05`` without events.
         laser: TABLE III rows, fields named as its header (``"W_Vel.x"``...).
         laser_t_s: each ``laser`` row's scan time (the ``scan`` event with its index),
             NaN if none; nominal ``index * 0.1`` without events.
-        steps: the ``step`` events: ``t_s``, the numeric fields (NaN: null), ``phase``
-            and ``action`` as strings.
-        scans: the ``scan`` events: ``t_s`` and the numeric fields.
+        steps: the :class:`~mkflight.logs.schema.Step` events: ``t_s``, the numeric
+            fields (NaN: null), ``phase`` and ``action`` as strings.
+        scans: the :class:`~mkflight.logs.schema.Scan` events: ``t_s`` and the
+            numeric fields.
         commands: every ExternControl written to the FC (:data:`COMMAND_DTYPE`).
         samples: every DebugOut read from the FC in SI (:data:`SAMPLE_DTYPE`).
         truth: the simulator's ``truth.txt`` (:data:`TRUTH_DTYPE`), None if absent.
-        info: ``flight.json`` as a dict (``log_format``, ``config``, ``summary``...).
-        events: every event, as :func:`mkflight.logs.events.read_events` gives them.
-        warnings: what was dropped or assumed (a cut-short tail, with file and offset).
+        info: ``flight.json`` (``log_format``, ``config``, the typed ``summary``).
+        events: every event, as :func:`mkflight.logs.events.read_events` gives them
+            (typed; an unknown kind or a line that does not fit its kind is an
+            :class:`~mkflight.logs.schema.UnknownEvent`, counted in ``warnings``).
+        warnings: what was dropped, assumed or kept unknown (a cut-short tail, with
+            file and offset; unknown events and summaries).
     """
 
     path: Path
@@ -142,13 +157,13 @@ class FlightData:
     commands: Array
     samples: Array
     truth: Array | None
-    info: dict[str, Any] | None
+    info: flight_json.FlightInfo | None
     events: list[Event]
     warnings: tuple[str, ...]
 
-    def event_table(self, name: str) -> Array:
-        """The events called ``name`` as a structured array (see :func:`event_table`)."""
-        return event_table(self.events, name, self.t0_ns or 0, self.path / events_log.FILE_NAME)
+    def event_table(self, kind: str | type[KnownEvent]) -> Array:
+        """The events of one kind as a structured array (see :func:`event_table`)."""
+        return event_table(self.events, kind, self.t0_ns or 0, self.path / events_log.FILE_NAME)
 
 
 def load_flight(folder: str | Path) -> FlightData:
@@ -173,6 +188,10 @@ def load_flight(folder: str | Path) -> FlightData:
         info = flight_json.read_flight_json(path / flight_json.FILE_NAME)
         if info.summary is None:
             warnings.append(f"{path / flight_json.FILE_NAME}: no summary (flight not ended)")
+        elif isinstance(info.summary, UnknownSummary):
+            warnings.append(
+                f"{path / flight_json.FILE_NAME}: summary kept as read ({info.summary.problem})"
+            )
     imu = _table(path / table4.FILE_NAME, table4.read_table4, table4.FORMAT.dtype, warnings)
     laser = _table(path / table3.FILE_NAME, table3.read_table3, table3.FORMAT.dtype, warnings)
     events, events_found = _events(path / events_log.FILE_NAME, warnings)
@@ -188,8 +207,8 @@ def load_flight(folder: str | Path) -> FlightData:
         t0_ns = events[0].t_ns
     t0 = t0_ns or 0
     events_path = path / events_log.FILE_NAME
-    steps = event_table(events, "step", t0, events_path)
-    scans = event_table(events, "scan", t0, events_path)
+    steps = event_table(events, Step, t0, events_path)
+    scans = event_table(events, Scan, t0, events_path)
     if events_found:
         imu_t_s = _by_index(imu["index"], dict(enumerate(steps["t_s"].tolist(), start=1)))
         laser_t_s = _by_index(laser["index"], _scan_times(scans))
@@ -217,7 +236,7 @@ def load_flight(folder: str | Path) -> FlightData:
         commands=commands,
         samples=samples,
         truth=truth,
-        info=None if info is None else asdict(info),
+        info=info,
         events=events,
         warnings=tuple(warnings),
     )
@@ -247,6 +266,7 @@ def _events(path: Path, warnings: list[str]) -> tuple[list[Event], bool]:
     data = read_events(path)
     if data.truncated:
         warnings.append(f"{path}:{_line_count(path)}: incomplete last event dropped")
+    warnings.extend(data.warnings)
     return data.events, True
 
 
@@ -308,52 +328,63 @@ def _kind(value: Any) -> str | None:
     return None
 
 
-def event_table(events: Sequence[Event], name: str, t0_ns: int, path: Path | str) -> Array:
-    """The events called ``name`` as a structured array: ``t_s`` and one field per key.
+def event_table(
+    events: Sequence[Event], kind: str | type[KnownEvent], t0_ns: int, path: Path | str
+) -> Array:
+    """The events of one kind as a structured array: ``t_s`` and one field per key.
 
-    ``t_s`` is ``(t_ns - t0_ns)`` in seconds. The flight's own ``step`` and ``scan``
-    fields are always columns, in a fixed order; any other key whose values are all
-    numbers (booleans too) or all strings follows. Numbers are float64 (null: NaN,
-    booleans 1.0/0.0), strings at least 'U16' (null: ""); lists, objects and keys of
-    mixed types stay in the :class:`Event` records only.
+    ``kind``: a Struct of :mod:`mkflight.logs.schema` (``Step``) or a kind's name
+    (``"step"``, or one this version does not know). ``t_s`` is ``(t_ns - t0_ns)`` in
+    seconds. A known kind's scalar fields are always columns, in its Struct's order
+    (absent: null); an unknown kind's keys whose values are all numbers (booleans too) or
+    all strings are. Numbers are float64 (null: NaN, booleans 1.0/0.0), strings at least
+    'U16' (null: ""); lists, objects and keys of mixed types stay in the event records
+    only. Lines of a known kind that did not fit its Struct are rows too, read by name.
 
     Raises:
-        ReplayError: a ``step``/``scan`` field of the wrong type (names ``path``, the
-            event's ``t_ns`` and the field).
+        ReplayError: a known kind's field of the wrong type (names ``path``, the event's
+            ``t_ns`` and the field).
     """
+    name = kind if isinstance(kind, str) else str(kind.__struct_config__.tag)
     chosen = [e for e in events if e.event == name]
     schema = dict(_SCHEMAS.get(name, ()))
     found: dict[str, set[str]] = {}
     for e in chosen:
         for key, value in e.fields.items():
-            kind = _kind(value)
-            if key in schema and kind not in ("", schema[key]):
+            kind_found = _kind(value)
+            if key in schema and kind_found not in ("", schema[key]):
                 want = "number" if schema[key] == "f" else "string"
                 msg = f"{path}: {name} event at t_ns {e.t_ns}: {key} = {value!r} is not a {want}"
                 raise ReplayError(msg)
-            if key not in schema and key not in ("", "t_s"):
-                found.setdefault(key, set()).add("?" if kind is None else kind)
+            if name not in KINDS and key not in ("", "t_s"):
+                found.setdefault(key, set()).add("?" if kind_found is None else kind_found)
     columns = dict(schema)
     for key, kinds in found.items():
         kinds.discard("")
         if len(kinds) <= 1 and "?" not in kinds:
             columns[key] = kinds.pop() if kinds else "f"
+    return _table_of(chosen, columns, t0_ns, path)
+
+
+def _table_of(chosen: list[Event], columns: dict[str, str], t0_ns: int, path: Path | str) -> Array:
+    """The structured array of ``chosen`` with ``columns`` ('f' float64, 'U' text)."""
+    values = [e.fields for e in chosen]
     dtype: list[tuple[str, Any]] = [("t_s", np.float64)]
     for key, kind in columns.items():
         if kind == "f":
             dtype.append((key, np.float64))
         else:
-            texts = [v for e in chosen if isinstance(v := e.fields.get(key), str)]
+            texts = [v for f in values if isinstance(v := f.get(key), str)]
             width = max([MIN_TEXT, *map(len, texts)])
             dtype.append((key, f"U{width}"))
     out = np.zeros(len(chosen), dtype)
     out["t_s"] = [_since(e.t_ns, t0_ns, path) for e in chosen]
     for key, kind in columns.items():
-        values = [e.fields.get(key) for e in chosen]
+        column = [f.get(key) for f in values]
         if kind == "f":
-            out[key] = [math.nan if v is None else float(v) for v in values]
+            out[key] = [math.nan if v is None else float(v) for v in column]
         else:
-            out[key] = ["" if v is None else v for v in values]
+            out[key] = ["" if v is None else v for v in column]
     return out
 
 

@@ -11,6 +11,12 @@ Format: one JSON object (UTF-8, indented)::
       "summary": {...}                              # null until the flight ends
     }
 
+``summary`` is a :class:`~mkflight.logs.schema.FlightSummary` (the daemon's, told by its
+``end_reason`` key) or a :class:`~mkflight.logs.schema.HoverSummary` (``sim hover``'s,
+told by ``end``); a summary that fits neither is read as an
+:class:`~mkflight.logs.schema.UnknownSummary` holding its fields as read (another
+version's; :func:`mkflight.logs.load_flight` warns).
+
 It is written at the start and again with the summary at the end. Each write goes to
 a new ``flight.json.tmp`` (created, so never written through a symlink planted under
 that name), is fsynced and renamed over ``flight.json``, so a reader never sees a
@@ -19,7 +25,7 @@ computed) are written as ``null``: strict JSON has no NaN.
 
 ``log_format`` versions the whole flight folder (the files, their columns, the events'
 fields; SPEC §6): it changes only when a reader of the previous format would misread the
-folder. Files written before the key existed are format 1; a reader refuses a format newer
+folder. A file without the key is format 1; a reader refuses a format newer
 than :data:`LOG_FORMAT` with a :class:`~mkflight.errors.ReplayError` naming the file.
 """
 
@@ -33,28 +39,33 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Final
 
+import msgspec
+
 import mkflight
 from mkflight.config import Config, config_to_dict
 from mkflight.errors import ReplayError
 from mkflight.logs._file import MAX_JSON_DEPTH, read_bytes, too_deep
+from mkflight.logs.schema import FlightSummary, HoverSummary, UnknownSummary
 
 FILE_NAME = "flight.json"
 LOG_FORMAT: Final = 1
 """The flight-folder format this mkflight writes and reads (absent from a file: 1)."""
 _KEYS = ("log_format", "start_utc", "mkflight_version", "fc_version", "config", "summary")
+Summary = FlightSummary | HoverSummary | UnknownSummary
+"""What ``flight.json``'s summary holds once the flight ended."""
 #: A larger file is refused unread: a flight's is a few kB (the config and the summary).
 MAX_BYTES: Final = 16 * 1024 * 1024
 
 
 @dataclass(frozen=True, slots=True)
 class FlightInfo:
-    """The content of ``flight.json`` (plain builtins past the config)."""
+    """The content of ``flight.json``: the config as plain builtins, the summary typed."""
 
     start_utc: str
     mkflight_version: str
     fc_version: str | None
     config: dict[str, Any]
-    summary: dict[str, Any] | None = None
+    summary: Summary | None = None
     log_format: int = LOG_FORMAT
 
 
@@ -72,9 +83,42 @@ def new_flight_info(start: datetime, cfg: Config, fc_version: str | None = None)
     return FlightInfo(stamp, mkflight.__version__, fc_version, config)
 
 
-def with_summary(info: FlightInfo, summary: dict[str, Any]) -> FlightInfo:
+def with_summary(info: FlightInfo, summary: Summary) -> FlightInfo:
     """The same metadata with the end-of-flight summary."""
     return replace(info, summary=summary)
+
+
+def summary_from_dict(data: dict[str, Any]) -> Summary:
+    """A summary as read: the Struct its keys name, or UnknownSummary if it does not fit."""
+    try:
+        if "end_reason" in data:
+            return msgspec.convert(data, FlightSummary, str_keys=True)
+        if "end" in data:
+            return msgspec.convert(data, HoverSummary, str_keys=True)
+    except msgspec.ValidationError as err:
+        return UnknownSummary(data, str(err))
+    return UnknownSummary(data, "neither an end_reason nor an end key")
+
+
+def _scalar(obj: Any) -> Any:
+    """A numpy scalar as the Python value it holds (a producer's float64, say)."""
+    item = getattr(obj, "item", None)
+    if callable(item):
+        return item()
+    msg = f"cannot write a {type(obj).__name__} into flight.json"
+    raise TypeError(msg)
+
+
+def to_plain(value: Any) -> Any:
+    """A summary Struct as builtins in its field order (absent fields left out).
+
+    Other values are returned as they are; non-finite floats stay (:func:`json_safe`).
+    """
+    if isinstance(value, UnknownSummary):
+        return value.fields
+    if isinstance(value, msgspec.Struct):
+        return msgspec.to_builtins(value, enc_hook=_scalar)
+    return value
 
 
 def json_safe(obj: Any) -> Any:
@@ -96,7 +140,7 @@ def write_flight_json(folder: str | Path, info: FlightInfo) -> Path:
     """
     path = Path(folder) / FILE_NAME
     tmp = path.with_name(FILE_NAME + ".tmp")
-    data = {key: json_safe(getattr(info, key)) for key in _KEYS}
+    data = {key: json_safe(to_plain(getattr(info, key))) for key in _KEYS}
     text = json.dumps(data, indent=2, allow_nan=False) + "\n"
     # A new file ("x": O_EXCL never follows a symlink), so a link planted in the folder
     # under the tmp name is not written through; one left by a killed write is removed.
@@ -140,7 +184,7 @@ def read_flight_json(path: str | Path) -> FlightInfo:
         "config": (dict,),
         "summary": (dict, type(None)),
     }
-    log_format = data.setdefault("log_format", 1)  # written before the key existed
+    log_format = data.setdefault("log_format", 1)  # no key: format 1
     if not isinstance(log_format, int) or isinstance(log_format, bool) or log_format < 1:
         msg = f"{path}: log_format: expected a positive integer, got {log_format!r}"
         raise ReplayError(msg)
@@ -158,4 +202,7 @@ def read_flight_json(path: str | Path) -> FlightInfo:
         if not isinstance(data[key], types):
             msg = f"{path}: {key}: unexpected type {type(data[key]).__name__}"
             raise ReplayError(msg)
+    summary = data["summary"]
+    if summary is not None:
+        data["summary"] = summary_from_dict(summary)
     return FlightInfo(**{key: data[key] for key in _KEYS})

@@ -1,4 +1,6 @@
-"""``laser_100ms.log``: the 100 ms laser-step log, TABLE III of the seed (§E; SPEC §6).
+"""``laser_100ms.log``: the 100 ms laser-step log (SPEC §6).
+
+It is TABLE III of the 2011 QUT CyPhy MikroKopter documentation (§E).
 
 Format (see :mod:`mkflight.logs._table`): a header line of exactly these 10 names,
 space-separated, then one row per 100 ms step, every value a float except ``index``
@@ -10,7 +12,7 @@ space-separated, then one row per 100 ms step, every value a float except ``inde
 
 Velocities in m/s (world frame W, then body frame B from the laser, then the filter's
 body-frame estimate; SPEC §1), position in m and heading in rad in W, ``index`` +1 per
-100 ms step (strictly increasing; a skipped step leaves a gap). The seed's table labels
+100 ms step (strictly increasing; a skipped step leaves a gap). The documented table labels
 column 2 ``B_Vel.y``; it is the body velocity along x. NaN (no valid value) is written
 ``nan``, which ``numpy.loadtxt(f, skiprows=1)`` reads as NaN.
 """

@@ -1,4 +1,6 @@
-"""``imu_50ms.log``: the 50 ms IMU/command-step log, TABLE IV of the seed (§E; SPEC §6).
+"""``imu_50ms.log``: the 50 ms IMU/command-step log (SPEC §6).
+
+It is TABLE IV of the 2011 QUT CyPhy MikroKopter documentation (§E).
 
 Format (see :mod:`mkflight.logs._table`): a header line of exactly these 14 names,
 space-separated, then one row per 50 ms step (the header is one line, folded here)::

@@ -18,7 +18,8 @@ Pure reading, no I/O beyond the files (SPEC §6). From a flight folder:
 Bad input is a :class:`~mkflight.errors.ReplayError` naming the file and the byte offset
 or line (as is a time the lock-step loop cannot run at,
 :data:`~mkflight.replay.vloop.MAX_T_NS`: the replay would wait for it forever); a tail
-cut short by a killed process is dropped with a warning.
+cut short by a killed process is dropped with a warning, as are the events of a kind or
+shape this version does not know (:class:`~mkflight.logs.schema.UnknownEvent`).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from mkflight.logs.events import read_events
 from mkflight.logs.flight import check_port_contents
 from mkflight.logs.flight_json import read_flight_json
 from mkflight.logs.raw import RawRecording, read_raw
+from mkflight.logs.schema import UNSET, Preflight, Ready, Scan, Step, Stop
 from mkflight.msgs import Pose2D
 from mkflight.replay.vloop import MAX_T_NS
 from mkflight.safety.failsafe import StopRequest
@@ -118,7 +120,7 @@ class RecordedFlight:
 
     @property
     def has_poses(self) -> bool:
-        """The events name each scan's pose (flights recorded before did not)."""
+        """The events name each scan's pose (a scan event without its pose fields names none)."""
         return bool(self.scans)
 
     @property
@@ -153,11 +155,26 @@ def _read_info(folder: Path) -> tuple[dict[str, Any], str, bool]:
     return info.config, info.mkflight_version, info.summary is not None
 
 
-def _pose(fields: dict[str, Any], t_ns: int) -> Pose2D | None:
-    x, y, yaw = fields.get("x_m"), fields.get("y_m"), fields.get("yaw_rad")
-    if not all(isinstance(v, int | float) for v in (x, y, yaw)):
-        return None
-    return Pose2D(t_ns, float(x), float(y), float(yaw))  # type: ignore[arg-type]
+def _pose(ev: Scan) -> Pose2D | None:
+    x, y, yaw = ev.x_m, ev.y_m, ev.yaw_rad
+    if isinstance(x, float) and isinstance(y, float) and isinstance(yaw, float):
+        return Pose2D(ev.t_ns, x, y, yaw)
+    return None
+
+
+def _recorded_scan(ev: Scan, where: str) -> RecordedScan:
+    """A ``scan`` event with its pose fields as the flight applied it."""
+    if ev.got_ns is not None:
+        _check_time(ev.got_ns, f"{where} got_ns")
+    return RecordedScan(
+        t_ns=ev.t_ns,
+        seq=ev.seq,
+        step=ev.step,
+        pose=_pose(ev),
+        height_m=ev.height_m,
+        degenerate=ev.degenerate,
+        got_ns=ev.got_ns,
+    )
 
 
 @dataclass(slots=True)
@@ -186,46 +203,41 @@ def _events(folder: Path, warnings: list[str]) -> _EventInputs:
             f"{path}: last line cut short: dropped; the events end after line "
             f"{len(data.events)}: the replay is checked only up to there"
         )
+    warnings.extend(w + ": the replay passes them over" for w in data.warnings)
     scans = out.scans
     step_ns: list[int] = []  # the k-th step event is step k
     for n, ev in enumerate(data.events, start=1):
-        f = ev.fields
-        _check_time(ev.t_ns, f"{path}: event {n} ({ev.event!r})")
-        if ev.event == "step":
-            step_ns.append(ev.t_ns)
-            continue
-        if ev.event == "ready" or (ev.event == "preflight" and out.ready_ns is None):
-            out.ready_ns = ev.t_ns  # flights before the 'ready' event: the pre-flight's end
-        elif ev.event == "scan" and "x_m" in f and isinstance(f.get("seq"), int):
-            step, got = f.get("step"), f.get("got_ns")
-            if isinstance(got, int) and not isinstance(got, bool):
-                _check_time(got, f"{path}: event {n} ({ev.event!r}) got_ns")
-            height = f.get("height_m")
-            scans[f["seq"]] = RecordedScan(
-                t_ns=ev.t_ns,
-                seq=f["seq"],
-                step=step if isinstance(step, int) else None,
-                pose=_pose(f, ev.t_ns),
-                height_m=float(height) if isinstance(height, int | float) else None,
-                degenerate=bool(f.get("degenerate", False)),
-                got_ns=got if isinstance(got, int) and not isinstance(got, bool) else None,
-            )
-        elif ev.event == "stop":
-            try:
-                request = StopRequest(f.get("request"))
-            except ValueError:
-                continue
-            if request not in EXTERNAL_STOPS:
-                continue
-            reason, steps = str(f.get("reason")), f.get("steps")
-            if isinstance(steps, int) and not isinstance(steps, bool):
-                out.step_stops.append((steps, request, reason))
-            else:  # before READY, or a flight recorded before 'steps'
-                out.stops.append(Input(ev.t_ns, "", "s", stop=request, reason=reason))
+        where = f"{path}: event {n} ({ev.event!r})"
+        _check_time(ev.t_ns, where)
+        match ev:
+            case Step():
+                step_ns.append(ev.t_ns)
+            case Ready():
+                out.ready_ns = ev.t_ns
+            case Preflight() if out.ready_ns is None:
+                out.ready_ns = ev.t_ns  # no 'ready' event: READY came as the pre-flight ended
+            case Scan() if ev.x_m is not UNSET:  # the pose recorded (else matched again)
+                scans[ev.seq] = _recorded_scan(ev, where)
+            case Stop():
+                _stop(ev, out)
     for seq, sc in scans.items():
         if sc.step is not None and 1 <= sc.step <= len(step_ns):
             scans[seq] = dataclasses.replace(sc, due_ns=step_ns[sc.step - 1])
     return out
+
+
+def _stop(ev: Stop, out: _EventInputs) -> None:
+    """An operator's stop: at the step that saw it in flight, else at its time."""
+    try:
+        request = StopRequest(ev.request)
+    except ValueError:
+        return
+    if request not in EXTERNAL_STOPS:
+        return
+    if ev.steps is not None:
+        out.step_stops.append((ev.steps, request, ev.reason))
+    else:  # before READY, or no 'steps' in the event
+        out.stops.append(Input(ev.t_ns, "", "s", stop=request, reason=ev.reason))
 
 
 def _intact_end(recordings: dict[str, RawRecording], warnings: list[str]) -> int | None:

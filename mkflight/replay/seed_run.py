@@ -26,6 +26,7 @@ from mkflight.flight.step import ImuStepOutput
 from mkflight.logs.events import read_events
 from mkflight.logs.flight import extern_control_frames
 from mkflight.logs.raw import read_raw
+from mkflight.logs.schema import Scan
 from mkflight.logs.table3 import COLUMNS as TABLE3_COLUMNS
 from mkflight.logs.table3 import read_table3
 from mkflight.logs.table4 import COLUMNS as TABLE4_COLUMNS
@@ -85,13 +86,8 @@ def _seed_comparison(
         by_index = {int(r["index"]): r for r in rows3}
         pairs = []
         for ev in read_events(out / "events.jsonl").events:
-            index = ev.fields.get("index")
-            if (
-                ev.event == "scan"
-                and isinstance(index, int)
-                and ev.t_ns in rows_used
-                and index in by_index
-            ):
+            index = ev.index if isinstance(ev, Scan) else None
+            if index is not None and ev.t_ns in rows_used and index in by_index:
                 pairs.append((by_index[index], laser_seed[rows_used[ev.t_ns]]))
         if pairs:
             ours3 = np.array([p[0] for p in pairs], dtype=rows3.dtype)

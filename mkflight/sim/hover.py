@@ -45,7 +45,6 @@ from mkflight.control.controller import Setpoint
 from mkflight.control.phases import Phase, PhaseRequests
 from mkflight.conversions import NS_PER_S, US_PER_S
 from mkflight.flight.step import PilotSticks
-from mkflight.logs.flight_json import with_summary, write_flight_json
 from mkflight.mk.messages import DebugOut
 from mkflight.mk.units import imu_from_debug
 from mkflight.msgs import Command, ImuSample
@@ -251,7 +250,7 @@ def run_hover(
         wall_s=wall_s,
         cpu0=cpu0,
     )
-    write_flight_json(log_dir, with_summary(flight.info, result.as_dict()))
+    flight.write_summary(log_dir, result.as_dict())
     return result
 
 

@@ -16,11 +16,11 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 
@@ -28,8 +28,9 @@ from mkflight.config import Config
 from mkflight.conversions import MM_PER_M, NS_PER_S
 from mkflight.flight.laser_pipeline import LaserPipeline
 from mkflight.flight.step import FlightCore, ImuStepOutput
+from mkflight.logs import schema
 from mkflight.logs.events import EventsWriter
-from mkflight.logs.flight_json import new_flight_info, write_flight_json
+from mkflight.logs.flight_json import new_flight_info, with_summary, write_flight_json
 from mkflight.logs.table3 import Table3Writer
 from mkflight.logs.table4 import Table4Writer
 from mkflight.mk.units import MkCalibration
@@ -84,6 +85,7 @@ class FlightSide:
         self.t3 = Table3Writer(log_dir)
         self.t4 = Table4Writer(log_dir)
         self.events = EventsWriter(log_dir)
+        self.fixes = 0  # pose fixes delivered: their sequence numbers
 
     def close(self) -> None:
         """Close the tables and the events."""
@@ -101,25 +103,44 @@ class FlightSide:
     def laser(self, data: PoseFix | RawScan, t_ns: int, faults: HoverFaults) -> None:
         """Apply one laser delivery at the step of ``t_ns`` (the daemon's MK task does)."""
         degenerate = False
+        match_ms = 0.0  # a pose fix: no matching ran
         pose: Pose2D | None
         height: float | None
         if isinstance(data, PoseFix):
-            pose, height, stamp = data.pose, data.height_m, data.pose.t_ns
+            self.fixes += 1
+            pose, height, stamp, seq = data.pose, data.height_m, data.pose.t_ns, self.fixes
         else:
             assert self.pipeline is not None
             scan = scan_from_raw(data)
             pitch, roll = self.attitude_at(scan.t_ns)
             r = self.pipeline.process(scan, pitch, roll)
             pose, height, stamp, degenerate = r.pose, r.height_m, r.scan_t_ns, r.degenerate
+            seq, match_ms = data.seq, round(r.compute_s * 1000, 3)
         if faults.active(stamp):
             pose = None if faults.drop_pose else pose
             height = None if faults.drop_height else height
+        step = self.core.counters.imu_steps + 1  # the step it enters at (the daemon's count)
         row3 = self.core.laser_step(
             pose, height, t_ns=stamp, degenerate=degenerate, arrival_ns=t_ns
         )
         if row3 is not None:
             self.t3.write_row(row3)
-            self.events.write(stamp, "scan", index=row3.index)  # the row's scan time
+        self.events.write(
+            schema.Scan(
+                t_ns=stamp,
+                index=None if row3 is None else row3.index,
+                step=step,
+                seq=seq,
+                valid=pose is not None,
+                got_ns=t_ns,
+                x_m=None if pose is None else pose.x_m,
+                y_m=None if pose is None else pose.y_m,
+                yaw_rad=None if pose is None else pose.yaw_rad,
+                height_m=height,
+                degenerate=degenerate,
+                match_ms=match_ms,
+            )
+        )
 
     def log_step(self, t_ns: int, out: ImuStepOutput, imu: ImuSample) -> None:
         """The tables and what they do not hold (SPEC §6): height, gas, battery, phase."""
@@ -127,30 +148,42 @@ class FlightSide:
         self.t4.write_row(out.row)
         sp = self.core.active_setpoint
         self.events.write(
-            t_ns,
-            "step",
-            x_m=round(out.estimate.x_m, 4),
-            y_m=round(out.estimate.y_m, 4),
-            sp_x_m=None if sp is None else round(sp.x_m, 4),
-            sp_y_m=None if sp is None else round(sp.y_m, 4),
-            sp_height_m=None if sp is None else round(sp.height_m, 4),
-            height_m=round(out.estimate.height_m, 4),
-            vz_up_mps=round(out.estimate.vz_up_mps, 4),
-            gas_counts=command.gas_counts,
-            battery_v=round(imu.battery_v, 2),
-            phase=out.phase.name,
-            action=out.action.name,
+            schema.Step(
+                t_ns=t_ns,
+                x_m=round(out.estimate.x_m, 4),
+                y_m=round(out.estimate.y_m, 4),
+                sp_x_m=None if sp is None else round(sp.x_m, 4),
+                sp_y_m=None if sp is None else round(sp.y_m, 4),
+                sp_height_m=None if sp is None else round(sp.height_m, 4),
+                height_m=round(out.estimate.height_m, 4),
+                vz_up_mps=round(out.estimate.vz_up_mps, 4),
+                gas_counts=command.gas_counts,
+                battery_v=round(imu.battery_v, 2),
+                phase=out.phase.name,
+                action=out.action.name,
+                latency_ms=None,  # lock-step: no wire, no latency
+            )
         )
         for e in out.failsafe_events:
             cause = getattr(e.cause, "value", "")
-            self.events.write(e.t_ns, "failsafe", action=e.action.name, cause=cause)
+            self.events.write(schema.Failsafe(t_ns=e.t_ns, action=e.action.name, cause=cause))
         for pe in out.phase_events:
-            self.events.write(pe.t_ns, "phase", to=pe.to_phase.name, reason=pe.reason)
+            self.events.write(
+                schema.PhaseChange(t_ns=pe.t_ns, to=pe.to_phase.name, reason=pe.reason)
+            )
 
     def learned(self) -> dict[str, object]:
         """``FlightCore.learned()`` when the core has it, else nothing."""
         learned = getattr(self.core, "learned", None)
         return dict(learned()) if callable(learned) else {}
+
+    def write_summary(self, log_dir: Path, summary: Mapping[str, Any]) -> None:
+        """``flight.json`` again, with ``sim hover``'s summary (``HoverResult.as_dict()``)."""
+        typed = schema.from_plain(
+            schema.HoverSummary,
+            {**summary, "learned": schema.from_plain(schema.Learned, summary["learned"])},
+        )
+        write_flight_json(log_dir, with_summary(self.info, typed))
 
 
 __all__ = ["FlightSide", "HoverFaults", "scan_from_raw"]

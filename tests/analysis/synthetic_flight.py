@@ -17,6 +17,7 @@ import numpy as np
 from mkflight.config import Config
 from mkflight.logs.events import EventsWriter
 from mkflight.logs.flight_json import new_flight_info, write_flight_json
+from mkflight.logs.schema import Step
 from mkflight.logs.table4 import Table4Row, Table4Writer
 
 PERIOD_S = 0.053248
@@ -47,6 +48,19 @@ def step_responses(t_s: np.ndarray, cmd: np.ndarray, delay_s: float, tau_s: floa
     response = np.where(age >= 0.0, 1.0 - np.exp(-np.maximum(age, 0.0) / tau_s), 0.0)
     out: np.ndarray = response @ steps
     return out
+
+
+def _step(t_s: float, vz_up_mps: float, gas_counts: int, battery_v: float, phase: str) -> Step:
+    """The step event of a flight whose clock starts at 1 s."""
+    return Step(
+        t_ns=1_000_000_000 + round(t_s * 1e9),
+        height_m=0.6,
+        vz_up_mps=vz_up_mps,
+        gas_counts=gas_counts,
+        battery_v=battery_v,
+        phase=phase,
+        action="NONE",
+    )
 
 
 def write_flight(
@@ -116,16 +130,8 @@ def write_flight(
                     k + 1,
                 )
             )
-            events.write(
-                1_000_000_000 + round(t[k] * 1e9),
-                "step",
-                height_m=0.6,
-                vz_up_mps=round(float(rng.normal(0.0, 0.02)), 4),
-                gas_counts=int(gas[k]),
-                battery_v=a.battery_v,
-                phase=str(phase[k]),
-                action="NONE",
-            )
+            vz_up_mps = round(float(rng.normal(0.0, 0.02)), 4)
+            events.write(_step(t[k], vz_up_mps, int(gas[k]), a.battery_v, str(phase[k])))
     finally:
         t4.close()
         events.close()

@@ -21,6 +21,7 @@ from mkflight.analysis.latency import (
 from mkflight.analysis.precision import AnalysisInputError
 from mkflight.config import Config, load_config
 from mkflight.logs.events import read_events
+from mkflight.logs.schema import Scan, Step
 from mkflight.logs.table3 import read_table3
 from mkflight.logs.table4 import read_table4
 from mkflight.sim.hover import run_hover
@@ -162,8 +163,8 @@ def _sim_latency(folder: Path) -> Latency:
     t4 = read_table4(folder / "imu_50ms.log").rows
     t3 = read_table3(folder / "laser_100ms.log").rows
     events = read_events(folder / "events.jsonl").events
-    t4_s = np.array([e.t_ns for e in events if e.event == "step"]) / 1e9
-    t3_s = np.array([e.t_ns for e in events if e.event == "scan"]) / 1e9
+    t4_s = np.array([e.t_ns for e in events if isinstance(e, Step)]) / 1e9
+    t3_s = np.array([e.t_ns for e in events if isinstance(e, Scan) and e.index is not None]) / 1e9
     assert len(t4_s) == len(t4)
     assert len(t3_s) == len(t3)
     return estimate_latency(

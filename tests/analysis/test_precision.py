@@ -16,25 +16,27 @@ from mkflight.analysis.precision import (
     with_truth,
 )
 from mkflight.config import Config
-from mkflight.logs.events import Event, read_events
+from mkflight.logs.events import read_events
+from mkflight.logs.schema import Step
 from mkflight.sim.hover import IMU_PERIOD_NS, SETTLE_S, run_hover
 
 NS = 1_000_000_000
 
 
-def _step(t_s: float, phase: str, x: float, sp: float | None) -> Event:
-    return Event(
-        int(t_s * NS),
-        "step",
-        {
-            "x_m": x,
-            "y_m": 0.0,
-            "height_m": 0.6,
-            "sp_x_m": sp,
-            "sp_y_m": None if sp is None else 0.0,
-            "sp_height_m": None if sp is None else 0.6,
-            "phase": phase,
-        },
+def _step(t_s: float, phase: str, x: float, sp: float | None) -> Step:
+    return Step(
+        t_ns=int(t_s * NS),
+        x_m=x,
+        y_m=0.0,
+        sp_x_m=sp,
+        sp_y_m=None if sp is None else 0.0,
+        sp_height_m=None if sp is None else 0.6,
+        height_m=0.6,
+        vz_up_mps=0.0,
+        gas_counts=100,
+        battery_v=12.0,
+        phase=phase,
+        action="NONE",
     )
 
 

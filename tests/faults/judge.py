@@ -48,6 +48,7 @@ from typing import Any, Final
 from mkflight.config import Config
 from mkflight.errors import MkflightError
 from mkflight.logs import load_flight
+from mkflight.logs.flight_json import to_plain
 from mkflight.sim.truth import parse_touchdowns
 from tests.faults.campaign import Flight
 from tests.faults.record import (
@@ -252,8 +253,7 @@ def judge(flight: Flight) -> Verdict:
                 if bad := limit_violations(counts, cfg):
                     problems.append(f"{len(bad)} commands out of limits, e.g. {bad[0]}")
             events = list(data.events)
-            info = data.info or {}
-            summary = info.get("summary") or {}
+            summary = to_plain(data.info.summary) if data.info and data.info.summary else {}
             lands = [
                 e.t_ns / NS
                 for e in events

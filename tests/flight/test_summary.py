@@ -1,11 +1,33 @@
-"""flight_summary: a function of the figures, its keys and the rules for why and how it ended."""
+"""flight_summary: a function of the figures, its keys, the rules for why and how it ended, and
+the summary's parts: each producer's plain values fit its Struct, key for key, in order
+(a key one adds or drops must show here, not as a TypeError in a shutdown)."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
+import msgspec
+import pytest
+
+from mkflight.config import Config, load_config
 from mkflight.control.phases import Phase
-from mkflight.flight.summary import MatcherFigures, end_reason, flight_summary
+from mkflight.flight.monitor import GcWatch
+from mkflight.flight.stats import StepStats
+from mkflight.flight.step import FlightCore
+from mkflight.flight.summary import MatcherFigures, _plain, end_reason, flight_summary
+from mkflight.logs.flight_json import to_plain
+from mkflight.logs.schema import (
+    GcStats,
+    LaserLinkStats,
+    Learned,
+    MkLinkStats,
+    RawCounters,
+    Timing,
+    from_plain,
+)
+from mkflight.mk.link_types import LinkStats
+from mkflight.urg.driver_types import UrgStats
 
 KEYS = [
     "end_reason",
@@ -30,15 +52,15 @@ def _summary(**changes: Any) -> dict[str, Any]:
         "stop_reason": "",
         "phase": Phase.RELEASED,
         "failsafes": [],
-        "learned": {},
+        "learned": FlightCore(Config()).learned(),
         "released": True,
         "wall_s": 20.0,
         "cpu_s": 5.0,
         "flight_s": 18.12345,
-        "timing": {"steps": 3},
+        "timing": StepStats().summary(),
         "hold_cpu": None,
         "precision": None,
-        "gc": {"collections": 0},
+        "gc": GcWatch().summary(),
         "matcher": MatcherFigures(scans=4, cpu_s=0.01),
         "preflight": None,
         "mk_link": None,
@@ -48,7 +70,8 @@ def _summary(**changes: Any) -> dict[str, Any]:
     }
     figures.update(changes)
     error = figures.pop("error", None)
-    return flight_summary(error, **figures)
+    out: dict[str, Any] = to_plain(flight_summary(error, **figures))
+    return out
 
 
 def test_the_keys_and_the_figures_derived_from_the_values() -> None:
@@ -71,9 +94,43 @@ def test_why_it_ended_stop_request_then_failsafe_then_phase() -> None:
 
 
 def test_lost_logs_exit_1_and_are_named_with_the_raw_counters() -> None:
-    raw = {"mk_raw": {"records": 1}, "laser_raw": {"records": 2}}
+    def counters(records: int) -> RawCounters:
+        return RawCounters(records=records, bytes_read=0, bytes_written=0, dropped=0, error=None)
+
+    raw = (counters(1), counters(2))
     out = _summary(raw=raw, log_error=OSError(28, "No space left on device"))
     assert out["exit_code"] == 1
-    assert out["mk_raw"] == {"records": 1}
+    assert out["mk_raw"]["records"] == 1
+    assert out["laser_raw"]["records"] == 2
     assert "No space left" in out["log_error"]
     assert _summary(raw=raw)["log_error"] is None
+
+
+def _same_keys_in_order(cls: type[msgspec.Struct], values: Mapping[str, Any]) -> None:
+    typed = from_plain(cls, values)
+    assert list(msgspec.to_builtins(typed)) == list(values)
+    assert msgspec.to_builtins(typed) == msgspec.to_builtins(dict(values))
+
+
+@pytest.mark.parametrize(
+    ("cls", "values"),
+    [
+        (Timing, lambda: StepStats().summary()),
+        (GcStats, lambda: GcWatch().summary()),
+        (MkLinkStats, lambda: LinkStats().summary()),
+        (LaserLinkStats, lambda: _plain(UrgStats())),
+        (Learned, lambda: FlightCore(Config()).learned()),
+        (
+            Learned,
+            lambda: FlightCore(load_config(None, ["estimation.filter=complementary"])).learned(),
+        ),
+    ],
+    ids=["timing", "gc", "mk_link", "laser_link", "learned-kalman", "learned-complementary"],
+)
+def test_each_part_fits_its_producer(cls: type[msgspec.Struct], values: Any) -> None:
+    _same_keys_in_order(cls, values())
+
+
+def test_a_key_the_struct_lacks_is_a_type_error() -> None:
+    with pytest.raises(TypeError):
+        from_plain(GcStats, {**GcWatch().summary(), "young": 3})

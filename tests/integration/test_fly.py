@@ -25,6 +25,18 @@ import pytest
 from mkflight.logs.events import read_events
 from mkflight.logs.flight_json import read_flight_json
 from mkflight.logs.raw import read_raw
+from mkflight.logs.schema import (
+    Failsafe,
+    FlightSummary,
+    LaserLinkStats,
+    LaserLost,
+    LaserReopened,
+    MkLinkStats,
+    PhaseChange,
+    PilotOverride,
+    Scan,
+    Step,
+)
 from mkflight.logs.table3 import read_table3
 from mkflight.logs.table4 import read_table4
 from mkflight.mk.messages import ExternControl
@@ -200,16 +212,16 @@ def _assert_commands_safe(folder: Path) -> list[ExternControl]:
 
 
 def _phases(folder: Path) -> list[str]:
-    return [
-        str(e.fields.get("to"))
-        for e in read_events(folder / "events.jsonl").events
-        if e.event == "phase"
-    ]
+    return [e.to for e in read_events(folder / "events.jsonl").events if isinstance(e, PhaseChange)]
 
 
-def _summary(folder: Path) -> dict[str, object]:
+def _causes(folder: Path) -> set[str]:
+    return {e.cause for e in read_events(folder / "events.jsonl").events if isinstance(e, Failsafe)}
+
+
+def _summary(folder: Path) -> FlightSummary:
     summary = read_flight_json(folder / "flight.json").summary
-    assert summary is not None
+    assert isinstance(summary, FlightSummary), summary
     return summary
 
 
@@ -255,8 +267,8 @@ def test_external_ptys_hover_precision_rates_and_columns(flights: dict[str, Outc
     assert t4.shape[1] == 14
     assert t3.shape[1] == 10
     events = read_events(o.folder / "events.jsonl").events
-    steps = [e.t_ns for e in events if e.event == "step"]
-    scans = [e.t_ns for e in events if e.event == "scan" and e.fields.get("index") is not None]
+    steps = [e.t_ns for e in events if isinstance(e, Step)]
+    scans = [e.t_ns for e in events if isinstance(e, Scan) and e.index is not None]
     span_s = (steps[-1] - steps[0]) / 1e9
     # The FC's DebugOut comes every ~53 ms (its clock), i.e. 18.8 Hz: "20 Hz" within 10 %.
     assert 18.0 <= (len(steps) - 1) / span_s <= 22.0
@@ -293,23 +305,18 @@ def test_fc_vanishing_exits_1_with_a_clear_line_and_intact_logs(
     assert "Traceback" not in o.stderr
     read_table4(o.folder / "imu_50ms.log")
     read_table3(o.folder / "laser_100ms.log")
-    assert _summary(o.folder)["exit_code"] == 1
+    assert _summary(o.folder).exit_code == 1
     assert_within_limits(_counts(commands_sent(o.folder)), flown_config(o.folder))
 
 
 def test_laser_stall_lands_by_failsafe(flights: dict[str, Outcome]) -> None:
     o = flights["laser_stall"]
     assert o.code == 0, o.stderr
-    events = read_events(o.folder / "events.jsonl").events
-    causes = {str(e.fields.get("cause")) for e in events if e.event == "failsafe"}
-    assert "laser_stale" in causes
+    assert "laser_stale" in _causes(o.folder)
     assert _phases(o.folder)[-3:] == ["LAND", "LANDED", "RELEASED"]
     _assert_commands_safe(o.folder)
     assert_landed_softly(o.folder)  # blind: the descent without the hat found the floor
-    summary = _summary(o.folder)
-    learned = summary["learned"]
-    assert isinstance(learned, dict)
-    assert learned["descents"], "the descent without height did not run"
+    assert _summary(o.folder).learned.descents, "the descent without height did not run"
 
 
 def test_garbage_and_crc_errors_are_counted_and_the_flight_goes_on(
@@ -318,18 +325,15 @@ def test_garbage_and_crc_errors_are_counted_and_the_flight_goes_on(
     o = flights["garbage"]
     assert o.code == 0, o.stderr
     s = _summary(o.folder)
-    mk = s["mk_link"]
-    laser = s["laser_link"]
-    assert isinstance(mk, dict)
-    assert isinstance(laser, dict)
-    assert mk["garbage_bytes"] > 0
-    assert mk["crc_errors"] > 0
-    assert laser["parser_garbage_lines"] > 2  # the start-up's QT drain leaves 2
-    assert laser["parser_sum_errors"] > 0
-    assert s["end_reason"] == "--duration 24 s"
-    failsafes = s["failsafes"]
-    assert isinstance(failsafes, list)
-    assert all("stop_duration" in f for f in failsafes), failsafes  # only the planned landing
+    mk, laser = s.mk_link, s.laser_link
+    assert isinstance(mk, MkLinkStats)
+    assert isinstance(laser, LaserLinkStats)
+    assert mk.garbage_bytes > 0
+    assert mk.crc_errors > 0
+    assert laser.parser_garbage_lines > 2  # the start-up's QT drain leaves 2
+    assert laser.parser_sum_errors > 0
+    assert s.end_reason == "--duration 24 s"
+    assert all("stop_duration" in f for f in s.failsafes), s.failsafes  # only the planned one
     _assert_commands_safe(o.folder)
     assert_landed_softly(o.folder)
 
@@ -337,8 +341,7 @@ def test_garbage_and_crc_errors_are_counted_and_the_flight_goes_on(
 def test_low_battery_lands(flights: dict[str, Outcome]) -> None:
     o = flights["battery"]
     assert o.code == 0, o.stderr
-    events = read_events(o.folder / "events.jsonl").events
-    causes = {str(e.fields.get("cause")) for e in events if e.event == "failsafe"}
+    causes = _causes(o.folder)
     assert any("battery" in c for c in causes), causes
     assert _phases(o.folder)[-3:] == ["LAND", "LANDED", "RELEASED"]
     _assert_commands_safe(o.folder)
@@ -350,9 +353,8 @@ def test_a_pilot_moving_a_stick_gets_control_at_once(flights: dict[str, Outcome]
     o = flights["pilot"]
     assert o.code == 0, o.stderr
     events = read_events(o.folder / "events.jsonl").events
-    assert any(e.event == "pilot_override" for e in events)
-    causes = {str(e.fields.get("cause")) for e in events if e.event == "failsafe"}
-    assert "pilot_override" in causes
+    assert any(isinstance(e, PilotOverride) for e in events)
+    assert "pilot_override" in _causes(o.folder)
     phases = _phases(o.folder)
     assert phases[-1] == "RELEASED"
     assert "LAND" not in phases  # no landing: the pilot flies
@@ -366,9 +368,9 @@ def test_laser_unplugged_and_back_is_reopened_while_landing(flights: dict[str, O
     it, lands on the stale laser, reopens the port and ends released, exit 0."""
     o = flights["laser_unplug"]
     assert o.code == 0, o.stderr
-    names = [e.event for e in read_events(o.folder / "events.jsonl").events]
-    assert "laser_lost" in names
-    assert "laser_reopened" in names
+    events = read_events(o.folder / "events.jsonl").events
+    assert any(isinstance(e, LaserLost) for e in events)
+    assert any(isinstance(e, LaserReopened) for e in events)
     assert _phases(o.folder)[-3:] == ["LAND", "LANDED", "RELEASED"]
     kinds = [r.kind for r in read_raw(o.folder / "laser.raw").records]
     assert kinds.count("o") >= 2  # opened, and opened again

@@ -23,6 +23,7 @@ from mkflight.flight.sdnotify import Notifier
 from mkflight.flight.step import ImuStepOutput
 from mkflight.logs.events import read_events
 from mkflight.logs.raw import read_raw
+from mkflight.logs.schema import Crash, Failsafe, Stop, StopDeadline
 from mkflight.msgs import ImuSample
 from mkflight.sim.live import LiveSim
 from tests.integration.recorded import assert_landed_softly, commands_sent
@@ -89,7 +90,8 @@ async def test_nan_in_the_estimate_lands_with_every_command_in_limits(tmp_path: 
     assert fault.injected > 0
     assert code == 0, reason
     assert reason.startswith("failsafe:")
-    causes = [e.fields.get("cause") for e in read_events(folder / "events.jsonl").events]
+    events = read_events(folder / "events.jsonl").events
+    causes = [e.cause for e in events if isinstance(e, Failsafe)]
     assert "nonfinite" in causes
     cmds = commands_sent(folder)
     assert_within_limits([(c.nick, c.roll, c.yaw, c.gas) for c in cmds], flown_config(folder))
@@ -106,7 +108,7 @@ async def test_a_crash_in_the_step_releases_and_exits_1(tmp_path: Path) -> None:
     assert int(cmds[-1].config) == 0  # handed back to the pilot at once
     assert sum(1 for c in cmds[-5:] if int(c.config) == 0) >= 3  # several release frames
     events = read_events(folder / "events.jsonl").events
-    assert any(e.event == "crash" and e.fields.get("task") == "mk-step" for e in events)
+    assert any(isinstance(e, Crash) and e.task == "mk-step" for e in events)
     read_raw(folder / "mk.raw")  # the recording is readable to its end
 
 
@@ -118,8 +120,8 @@ async def test_a_landing_that_overruns_its_deadline_is_released(tmp_path: Path) 
     assert code == 1
     assert "did not end within 0.3 s" in reason
     events = read_events(folder / "events.jsonl").events
-    assert any(e.event == "stop" and e.fields.get("request") == "sigterm" for e in events)
-    assert any(e.event == "stop_deadline" for e in events)
+    assert any(isinstance(e, Stop) and e.request == "sigterm" for e in events)
+    assert any(isinstance(e, StopDeadline) for e in events)
     assert int(commands_sent(folder)[-1].config) == 0
 
 
@@ -155,8 +157,8 @@ async def test_a_full_disk_mid_flight_lands_softly(tmp_path: Path) -> None:
         await sim.stop()
     assert report.exit_code == 1, report.reason  # landed, but the logs are incomplete
     assert report.reason.startswith("log write failed")
-    assert report.summary["final_phase"] == "RELEASED"
-    assert "No space left" in str(report.summary["log_error"])
+    assert report.summary.final_phase == "RELEASED"
+    assert "No space left" in str(report.summary.log_error)
     cmds = commands_sent(folder)
     assert_within_limits([(c.nick, c.roll, c.yaw, c.gas) for c in cmds], flown_config(folder))
     assert_landed_softly(folder)

@@ -11,6 +11,7 @@ import pytest
 from mkflight.config import Config, LaserConfig
 from mkflight.logs.flight import load_flight
 from mkflight.logs.flight_json import read_flight_json
+from mkflight.logs.schema import HoverSummary, Step
 from mkflight.sim.airframe import airframe_from_config, describe, random_airframe
 from mkflight.sim.hover import (
     END_FLYING,
@@ -47,7 +48,7 @@ def test_a_short_flight_lands_and_leaves_readable_tables(tmp_path: Path) -> None
     assert len(t4) == pytest.approx(2 * len(t3), rel=0.2)
     # every command within the flight's configured limits: tilt, yaw from TABLE IV's
     # ControlPitch/Roll/Yaw, gas from the step events (one per row, the same steps)
-    gas = [e.fields["gas_counts"] for e in load_flight(tmp_path / "f").events if e.event == "step"]
+    gas = [e.gas_counts for e in load_flight(tmp_path / "f").events if isinstance(e, Step)]
     assert len(gas) == len(t4)
     counts = [(r[6], r[7], r[8], g) for r, g in zip(t4.tolist(), gas, strict=True)]
     assert_within_limits(counts, flown_config(tmp_path / "f"))
@@ -61,11 +62,11 @@ def test_a_short_flight_lands_and_leaves_readable_tables(tmp_path: Path) -> None
     assert speeds == pytest.approx(result.touchdowns_mps, abs=1e-4)
     assert not lines[-1].startswith("#")
     info = read_flight_json(tmp_path / "f")
-    assert info.summary is not None
-    assert info.summary["landed"] is True
-    assert info.summary["end"] == END_LANDED
-    assert info.summary["touchdowns_mps"] == [round(v, 3) for v in result.touchdowns_mps]
-    assert info.summary["airframe"] == result.airframe
+    assert isinstance(info.summary, HoverSummary)
+    assert info.summary.landed is True
+    assert info.summary.end == END_LANDED
+    assert info.summary.touchdowns_mps == [round(v, 3) for v in result.touchdowns_mps]
+    assert info.summary.airframe == result.airframe
     flight = load_flight(tmp_path / "f")  # the project's reader takes the new comments
     assert flight.truth is not None
     assert len(flight.truth) == len(truth)

@@ -20,6 +20,7 @@ import structlog
 
 from mkflight.eventlog import configure_events, exception_text, on_journal
 from mkflight.logs.events import FILE_NAME, EventsWriter, read_events
+from mkflight.logs.schema import Crash, Ready
 
 CHILD = """
 import structlog
@@ -155,13 +156,15 @@ def test_an_exception_in_the_events_log_reads_back(tmp_path: Path) -> None:
     except RuntimeError as err:
         exc = err
     with EventsWriter(tmp_path) as w:
-        w.write(1, "step", height_m=0.6)
-        w.write(2, "crash", task="mk-step", error=repr(exc), exception=exception_text(exc))
-    step, crash = read_events(tmp_path / FILE_NAME).events
-    assert step.fields == {"height_m": 0.6}
-    assert crash.fields["error"] == repr(exc)
-    assert crash.fields["exception"].splitlines()[-1] == "RuntimeError: cannot parse the gas stick"
-    assert "in _boom" in crash.fields["exception"]
+        w.write(Ready(t_ns=1))
+        w.write(Crash(t_ns=2, task="mk-step", error=repr(exc), exception=exception_text(exc)))
+    ready, crash = read_events(tmp_path / FILE_NAME).events
+    assert ready == Ready(t_ns=1)
+    assert isinstance(crash, Crash)
+    assert crash.error == repr(exc)
+    assert isinstance(crash.exception, str)
+    assert crash.exception.splitlines()[-1] == "RuntimeError: cannot parse the gas stick"
+    assert "in _boom" in crash.exception
 
 
 @pytest.mark.parametrize("journal", [True, False])

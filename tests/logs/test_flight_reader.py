@@ -10,6 +10,7 @@ from dataclasses import astuple, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -34,6 +35,7 @@ from mkflight.logs import (
 )
 from mkflight.logs.flight import COMMAND_DTYPE, SAMPLE_DTYPE, TRUTH_DTYPE, extern_controls
 from mkflight.logs.raw import RawRecorder, read_raw
+from mkflight.logs.schema import FlightSummary, PhaseChange, Preflight, Scan, Step, UnknownEvent
 from mkflight.logs.table3 import COLUMNS as T3_COLUMNS
 from mkflight.logs.table4 import COLUMNS as T4_COLUMNS
 from mkflight.mk.codec import FrameParser
@@ -52,6 +54,7 @@ from mkflight.mk.messages import (
 from mkflight.sim.truth import TruthLog
 from mkflight.sim.vehicle import VehicleState
 from tests.integration.recorded import commands_sent
+from tests.logs import format1, records
 
 T0_NS = 7_000_000_000  # the raw recorders' clock at the folder's creation
 MS = 1_000_000
@@ -73,22 +76,42 @@ T3_ROWS = [
 ]
 
 
-def _step_fields(x_m: float, phase: str, sp: float | None) -> dict[str, object]:
-    """The fields FlightLogs.step writes."""
-    return {
-        "x_m": x_m,
-        "y_m": -x_m,
-        "sp_x_m": sp,
-        "sp_y_m": sp,
-        "sp_height_m": sp,
-        "height_m": 0.6,
-        "vz_up_mps": 0.01,
-        "gas_counts": 120,
-        "battery_v": 12.4,
-        "phase": phase,
-        "action": "NONE",
-        "latency_ms": 0.8,
-    }
+def _step(t_ns: int, x_m: float, phase: str, sp: float | None) -> Step:
+    """A step event as FlightLogs.step writes it."""
+    return Step(
+        t_ns=t_ns,
+        x_m=x_m,
+        y_m=-x_m,
+        sp_x_m=sp,
+        sp_y_m=sp,
+        sp_height_m=sp,
+        height_m=0.6,
+        vz_up_mps=0.01,
+        gas_counts=120,
+        battery_v=12.4,
+        phase=phase,
+        action="NONE",
+        latency_ms=0.8,
+    )
+
+
+def _scan(t_ns: int, index: int | None, step: int, seq: int, height_m: float | None) -> Scan:
+    """A scan event as the daemon writes it (no pose when ``height_m`` is None)."""
+    valid = height_m is not None
+    return Scan(
+        t_ns=t_ns,
+        index=index,
+        step=step,
+        seq=seq,
+        valid=valid,
+        got_ns=t_ns + 20 * MS,
+        x_m=0.25 if valid else None,
+        y_m=-0.5 if valid else None,
+        yaw_rad=0.125 if valid else None,
+        height_m=height_m,
+        degenerate=not valid,
+        match_ms=1.5,
+    )
 
 
 @dataclass(frozen=True)
@@ -152,44 +175,14 @@ def _flight_folder(folder: Path, *, summary: bool = True) -> Written:
         for row3 in T3_ROWS:
             t3.write_row(row3)
     with EventsWriter(folder) as ev:
-        ev.write(T0_NS + 5 * MS, "preflight", fc_version="0.84a", battery_v=12.6)
-        ev.write(
-            T0_NS + 40 * MS,
-            "scan",
-            index=None,
-            step=1,
-            seq=6,
-            valid=True,
-            height_m=0.0,
-            degenerate=False,
-            match_ms=1.5,
-        )
-        ev.write(T0_NS + 50 * MS, "step", **_step_fields(0.5, "HANDSHAKE", None))
-        ev.write(T0_NS + 50 * MS, "phase", to="TAKEOFF", reason="handshake done")
-        ev.write(T0_NS + 100 * MS, "step", **_step_fields(-1.25, "TAKEOFF", 0.25))
-        ev.write(
-            T0_NS + 140 * MS,
-            "scan",
-            index=1,
-            step=3,
-            seq=7,
-            valid=True,
-            height_m=0.3,
-            degenerate=False,
-            match_ms=2.0,
-        )
-        ev.write(T0_NS + 150 * MS, "step", **_step_fields(2.0, "HOLD", 0.5))
-        ev.write(
-            T0_NS + 240 * MS,
-            "scan",
-            index=2,
-            step=5,
-            seq=8,
-            valid=False,
-            height_m=None,
-            degenerate=True,
-            match_ms=0.5,
-        )
+        ev.write(Preflight.of(T0_NS + 5 * MS, records.PREFLIGHT))
+        ev.write(_scan(T0_NS + 40 * MS, None, 1, 6, 0.0))
+        ev.write(_step(T0_NS + 50 * MS, 0.5, "HANDSHAKE", None))
+        ev.write(PhaseChange(t_ns=T0_NS + 50 * MS, to="TAKEOFF", reason="handshake done"))
+        ev.write(_step(T0_NS + 100 * MS, -1.25, "TAKEOFF", 0.25))
+        ev.write(_scan(T0_NS + 140 * MS, 1, 3, 7, 0.3))
+        ev.write(_step(T0_NS + 150 * MS, 2.0, "HOLD", 0.5))
+        ev.write(_scan(T0_NS + 240 * MS, 2, 5, 8, None))
     written = _write_mk_raw(folder)
     with RawRecorder(folder / "laser.raw", "/dev/ttyACM0", clock=ManualClock(T0_NS + 3)) as rec:
         rec("w", T0_NS + 4, b"SCIP2.0\n")
@@ -198,7 +191,7 @@ def _flight_folder(folder: Path, *, summary: bool = True) -> Written:
     truth.write(T0_NS + 50 * MS, VehicleState(pos_w_m=(0.75, 0.0, -0.5)))
     truth.close()
     if summary:
-        write_flight_json(folder, with_summary(info, {"end_reason": "duration"}))
+        write_flight_json(folder, with_summary(info, records.summary()))
     return written
 
 
@@ -305,9 +298,9 @@ def test_info_is_flight_json_with_its_log_format(folder: Path) -> None:
     _flight_folder(folder)
     f = load_flight(folder)
     assert f.info is not None
-    assert f.info["log_format"] == LOG_FORMAT == 1
-    assert f.info["summary"] == {"end_reason": "duration"}
-    assert f.info["config"]["mk"]["voltage_unit_v"] == 0.05
+    assert f.info.log_format == LOG_FORMAT == 1
+    assert f.info.summary == records.summary()
+    assert f.info.config["mk"]["voltage_unit_v"] == 0.05
     assert json.loads((folder / "flight.json").read_text())["log_format"] == 1
 
 
@@ -455,7 +448,7 @@ def test_flight_json_without_log_format_is_format_1(folder: Path) -> None:
     assert read_flight_json(path).log_format == 1
     info = load_flight(folder).info
     assert info is not None
-    assert info["log_format"] == 1
+    assert info.log_format == 1
     data["log_format"] = "1"
     path.write_text(json.dumps(data))
     with pytest.raises(ReplayError, match=r"flight\.json: log_format: expected a positive integer"):
@@ -517,24 +510,64 @@ def test_events_times_beyond_any_clock_are_a_replay_error(folder: Path) -> None:
         load_flight(folder)
 
 
-def test_extra_event_fields_become_columns_and_mixed_ones_do_not(folder: Path) -> None:
+def test_an_unknown_kinds_fields_become_columns_and_mixed_ones_do_not(folder: Path) -> None:
+    """A kind this version does not know (a newer writer's): its scalar keys are columns."""
     folder.mkdir()
     with Table4Writer(folder):
         pass
-    with EventsWriter(folder) as ev:
-        ev.write(0, "scan", index=1, yaw_rad=0.5, note="a", mixed=1, nested=[1])
-        ev.write(
-            1, "scan", index=2, yaw_rad=None, note="a very long note, longer than 16", mixed="x"
-        )
+    lines = [
+        {"t_ns": 0, "event": "note", "index": 1, "yaw_rad": 0.5, "text": "a", "mixed": 1},
+        {"t_ns": 1, "event": "note", "index": 2, "yaw_rad": None, "mixed": "x", "nested": [1]},
+        {"t_ns": 2, "event": "note", "text": "a very long note, longer than 16"},
+    ]
+    (folder / "events.jsonl").write_text("".join(json.dumps(e) + "\n" for e in lines))
     f = load_flight(folder)
-    names = f.scans.dtype.names
-    assert names is not None
-    assert names[-2:] == ("yaw_rad", "note")
-    assert "mixed" not in names
-    assert "nested" not in names
-    assert f.scans["note"].tolist() == ["a", "a very long note, longer than 16"]
-    assert np.isnan(f.scans["yaw_rad"][1])
-    assert f.events[0].fields["nested"] == [1]
+    notes = f.event_table("note")
+    assert notes.dtype.names == ("t_s", "index", "yaw_rad", "text")
+    assert notes["text"].tolist() == ["a", "", "a very long note, longer than 16"]
+    assert np.isnan(notes["yaw_rad"][1])
+    fields = {k: v for k, v in lines[1].items() if k not in ("t_ns", "event")}
+    assert f.events[1] == UnknownEvent(1, "note", fields)
+    assert f.warnings == (
+        f"{folder / 'events.jsonl'}:1: 3 'note' events of a kind not known here: "
+        "kept as unknown events",
+    )
+
+
+def test_a_known_kinds_columns_are_its_struct_fields(folder: Path) -> None:
+    """Keys a known kind does not have are passed over; a field it lacks is null."""
+    folder.mkdir()
+    with Table4Writer(folder):
+        pass
+    scan = msgspec.to_builtins(_scan(5, 1, 1, 7, 0.5))
+    del scan["got_ns"]
+    (folder / "events.jsonl").write_text(json.dumps({**scan, "note": "a"}) + "\n")
+    f = load_flight(folder)
+    assert f.scans.dtype.names == (
+        *("t_s", "index", "step", "seq", "valid", "got_ns", "x_m", "y_m", "yaw_rad"),
+        *("height_m", "degenerate", "match_ms"),
+    )
+    assert np.isnan(f.scans["got_ns"][0])
+    assert f.scans["x_m"].tolist() == [0.25]
+    assert f.warnings == ()
+
+
+def test_a_format_1_folder_loads(folder: Path) -> None:
+    """A format-1 folder (mkflight 0.1.0's lines) loads, typed, without warnings."""
+    folder.mkdir()
+    (folder / "events.jsonl").write_text("".join(e + "\n" for e in format1.EVENT_LINES))
+    (folder / "flight.json").write_text(json.dumps(format1.FLIGHT_JSON, indent=2))
+    f = load_flight(folder)
+    assert f.warnings == ()
+    assert f.info is not None
+    assert isinstance(f.info.summary, FlightSummary)
+    assert f.info.summary.end_reason == "--duration 60 s"
+    assert len(f.steps) == 3
+    assert f.steps["phase"].tolist() == ["PREFLIGHT", "HANDSHAKE", "HANDSHAKE"]
+    assert f.scans["index"][1:3].tolist() == [1.0, 2.0]
+    assert np.isnan(f.scans["index"][[0, 3]]).all()
+    assert sum(isinstance(e, Step) for e in f.events) == 3
+    assert f.t0_ns == 35014413562503  # no raw recordings: the first event's time
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -25,8 +25,10 @@ from mkflight.flight.flight_logs import TRUTH_FILE, FlightLogs
 from mkflight.logs.events import EventsWriter
 from mkflight.logs.flight_json import FILE_NAME, new_flight_info, write_flight_json
 from mkflight.logs.raw import RawRecorder
+from mkflight.logs.schema import Ready
 from mkflight.logs.table3 import Table3Writer
 from mkflight.logs.table4 import Table4Writer
+from tests.logs import records
 from tests.security.helpers import mkflight, one_error, tree
 
 FOLDER_FILES = [
@@ -137,8 +139,8 @@ def test_a_truth_symlink_the_check_lets_through_is_never_written(
     folder = tmp_path / "flight"
     _plant(folder, TRUTH_FILE, victim)
     logs = _logs(folder)
-    logs.event(2_000, "hello", text="x")
-    logs.close(3_000, {"end_reason": "test"})
+    logs.event(Ready(t_ns=2_000))
+    logs.close(3_000, records.summary(end_reason="test"))
     assert victim.read_bytes() == VICTIM_TEXT
     kinds = {p.name: (p.is_file(), p.is_symlink()) for p in folder.iterdir()}
     assert kinds == {n: (True, False) for n in FOLDER_FILES if n != "flight.json.tmp"} | {
@@ -149,7 +151,7 @@ def test_a_truth_symlink_the_check_lets_through_is_never_written(
 def test_a_fresh_folder_holds_only_new_regular_files(tmp_path: Path) -> None:
     folder = tmp_path / "a" / "flight"
     logs = _logs(folder)
-    logs.close(2_000, {})
+    logs.close(2_000, records.summary())
     kinds = {p.name: (p.is_file(), p.is_symlink()) for p in folder.iterdir()}
     assert kinds == {n: (True, False) for n in FOLDER_FILES if n != "flight.json.tmp"}
 
