@@ -1,4 +1,4 @@
-"""Scan-matcher benchmark (SPEC §9, issue 5): time per scan and relation error per dataset.
+"""Scan-matcher benchmark (SPEC §9): time per scan and relation error per dataset.
 
 Run: ``python tools/bench_scanmatch.py [--json] [--only NAME ...] [--repeat N]``.
 

@@ -1,4 +1,4 @@
-"""Fuzzing (issue 10): seeded random streams through both parsers, the MK link and the URG driver.
+"""Fuzzing: seeded random streams through both parsers, the MK link and the URG driver.
 
 Run: ``python tools/fuzz.py`` (``--frames N --scans N``, default 100000 each; ``--seed S``;
 ``--pty-frames N --pty-scans N`` for the pty passes, default 20000 and 5000; ``--json``).

@@ -1,4 +1,4 @@
-"""Soak (issue 10): one long real-time simulated hover, gusts and battery drain on.
+"""Soak: one long real-time simulated hover, gusts and battery drain on.
 
 Run: ``python tools/soak.py`` (30 minutes; ``--minutes M``, ``--json FILE`` for every
 figure, ``--log-dir DIR`` to keep the flight folder). Exit 0 only if no step was missed and
