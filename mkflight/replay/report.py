@@ -119,6 +119,22 @@ def compare_tables(
     return out
 
 
+def last_rows(folder: Path) -> dict[str, int]:
+    """Per table of ``folder``, the index (last column) of its last whole row (0: none).
+
+    A killed flight's tables end at the last step it wrote; the replayed daemon may step
+    once more on a DebugOut the recording holds but the killed process had not yet
+    written a row for. That row comes after the recording ended and is not compared.
+    """
+    out: dict[str, int] = {}
+    for name in TABLES:
+        path = folder / name
+        lines = _lines(path) if path.is_file() else []
+        rows = _upto(lines, 2**62)[1:]
+        out[name] = int(rows[-1].rsplit(maxsplit=1)[-1]) if rows else 0
+    return out
+
+
 def _upto(lines: list[str], last_index: int) -> list[str]:
     """The header and the rows whose index (the last column) is at most ``last_index``."""
     out = lines[:1]

@@ -34,7 +34,7 @@ from mkflight.replay.compare import compare_commands
 from mkflight.replay.daemon import ReplayApp
 from mkflight.replay.feeder import Feeder
 from mkflight.replay.inputs import RecordedFlight, read_recorded_flight
-from mkflight.replay.report import ReplayReport, compare_tables
+from mkflight.replay.report import ReplayReport, compare_tables, last_rows
 from mkflight.replay.seed_run import is_seed_folder, replay_seed
 from mkflight.replay.session import out_dir_for, run_lockstep
 from mkflight.replay.vloop import VirtualClock
@@ -217,7 +217,7 @@ def _report(
     replayed = extern_control_frames(read_raw(out / "mk.raw")) if (out / "mk.raw").exists() else []
     warnings = _warnings(rec, feeder)
     end_ns = None if rec.completed else rec.end_ns
-    upto: dict[str, int] | None = None
+    upto = None if rec.completed else last_rows(rec.folder)
     if rec.intact_end_ns is not None:
         end_ns = rec.intact_end_ns
         upto = app.rows_at_intact_end
