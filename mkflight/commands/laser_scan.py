@@ -51,7 +51,7 @@ def scan_row(
     lo, hi = laser.scan_steps
     ranges = scan.ranges_m[(steps >= lo) & (steps <= hi)][::-1]  # increasing body angle
     hat = scan.ranges_m[(steps >= laser.hat_steps[0]) & (steps <= laser.hat_steps[1])]
-    height = hat_height(hat, 0.0, 0.0, HatSettings(offset_m=laser.hat_offset_m))
+    height = hat_height(hat, 0.0, 0.0, HatSettings.from_config(laser))
     values: list[float | None] = [None if math.isnan(r) else round(float(r), 3) for r in ranges]
     row: dict[str, object] = {
         "t": round((scan.t_ns - t0_ns) / NS_PER_S, 6),

@@ -63,15 +63,19 @@ class DescentMode(enum.Enum):
     OPEN = "open"
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class DescentParams:
-    """Gains and thresholds of :class:`Descent` (module docstring)."""
+    """Gains and thresholds of :class:`Descent` (module docstring).
 
-    descent_mps: float = 0.3
-    kp_gas_per_mps: float = 60.0
-    ki_gas_per_m: float = 20.0
-    integral_limit_gas: float = 30.0
-    gas_max: int = 130
+    The fields without a default come from the config (:meth:`from_config`: ``control``
+    and ``mk.g_mps2``), their one home; the others are the descent's own constants.
+    """
+
+    descent_mps: float
+    kp_gas_per_mps: float
+    ki_gas_per_m: float
+    integral_limit_gas: float
+    gas_max: int
     ramp_mps2: float = 0.5
     stop_window_s: float = 0.2
     stop_fraction: float = 0.6
@@ -84,11 +88,11 @@ class DescentParams:
     fall_window_s: float = 0.5
     probe_arrest_fraction: float = 0.05
     probe_fall_limit_mps: float = 0.2
-    floor_height_m: float = 0.05
+    floor_height_m: float
     floor_still_s: float = 0.5
     open_accel_mps2: float = 0.5
     max_s: float = 12.0
-    g_mps2: float = 9.81
+    g_mps2: float
 
     @classmethod
     def from_config(cls, control: ControlConfig, g_mps2: float) -> DescentParams:

@@ -83,7 +83,7 @@ class VerticalDeadReckoning:
         hover_gas_counts: float,
         gas_counts: float,
         noise_mps2: float | None,
-        g_mps2: float = 9.81,
+        g_mps2: float,
     ) -> None:
         """Start from the last estimate with the hat.
 

@@ -207,7 +207,7 @@ class LaserPipeline:
     def __init__(self, cfg: Config) -> None:
         self._laser = cfg.laser
         self._scanmatch = cfg.scanmatch
-        self._hat = HatSettings(offset_m=cfg.laser.hat_offset_m, min_range_m=cfg.laser.min_range_m)
+        self._hat = HatSettings.from_config(cfg.laser)
         self._matcher = self._new_matcher()
         self._prev_t_ns: int | None = None
         self._have_reference = False

@@ -25,6 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from mkflight.config import LaserConfig
+
 MAD_TO_SIGMA = 1.4826  # for Gaussian noise, sigma = 1.4826 * MAD
 
 
@@ -42,10 +44,14 @@ class HatHeight:
 
 @dataclass(frozen=True, slots=True)
 class HatSettings:
-    """Thresholds of :func:`hat_height` (defaults suit the URG-04LX's 84 hat steps)."""
+    """Thresholds of :func:`hat_height` (the defaults suit the URG-04LX's 84 hat steps).
 
-    offset_m: float = 0.05
-    min_range_m: float = 0.02
+    ``offset_m`` and ``min_range_m`` come from the ``laser`` section (:meth:`from_config`),
+    their one home.
+    """
+
+    offset_m: float
+    min_range_m: float
     max_range_m: float = 4.0
     min_beams: int = 8
     min_valid_fraction: float = 0.25
@@ -54,6 +60,11 @@ class HatSettings:
     max_spread_m: float = 0.05
     max_tilt_rad: float = 0.6
     min_height_m: float = -0.10
+
+    @classmethod
+    def from_config(cls, laser: LaserConfig) -> HatSettings:
+        """The thresholds for the configured hat (``laser.hat_offset_m``, ``min_range_m``)."""
+        return cls(offset_m=laser.hat_offset_m, min_range_m=laser.min_range_m)
 
 
 def _none(reason: str, valid: int = 0, used: int = 0, spread: float = math.nan) -> HatHeight:
@@ -64,7 +75,7 @@ def hat_height(
     ranges_m: npt.NDArray[np.float64],
     pitch_rad: float,
     roll_rad: float,
-    settings: HatSettings | None = None,
+    settings: HatSettings,
 ) -> HatHeight:
     """Height above the floor from the hat beams' ranges (NaN = invalid beam), eq 26.
 
@@ -72,12 +83,12 @@ def hat_height(
         ranges_m: the ranges of the hat steps only, in metres; NaN for error codes.
         pitch_rad: pitch at the time of the scan (SPEC §1).
         roll_rad: roll at the time of the scan.
-        settings: thresholds; the defaults match the URG-04LX and the original system's hat.
+        settings: the thresholds (``HatSettings.from_config(cfg.laser)`` for the configured hat).
 
     Returns:
         The height and how it was obtained, or an invalid result with the reason.
     """
-    s = settings or HatSettings()
+    s = settings
     if not (math.isfinite(pitch_rad) and math.isfinite(roll_rad)):
         return _none("attitude unknown")
     if abs(pitch_rad) > s.max_tilt_rad or abs(roll_rad) > s.max_tilt_rad:

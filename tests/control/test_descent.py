@@ -8,12 +8,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mkflight.config import Config
 from mkflight.control.descent import Descent, DescentMode, DescentParams
 from mkflight.estimation.vertical import VerticalDeadReckoning
 
 from .vertical_world import STEP_NS, VerticalWorld
 
-PARAMS = DescentParams()
+PARAMS = DescentParams.from_config(Config().control, Config().mk.g_mps2)
 MAX_TOUCHDOWN_MPS = 0.5  # SPEC §8: every touchdown at most this fast
 
 
@@ -38,6 +39,7 @@ def land(
         hover_gas_counts=hover,
         gas_counts=gas,
         noise_mps2=world.noise_mps2,
+        g_mps2=PARAMS.g_mps2,
     )
     descent = Descent(
         PARAMS,

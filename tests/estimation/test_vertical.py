@@ -19,7 +19,7 @@ STEP_S = STEP_NS / 1e9
 def filter_at_rest(noise: float | None = 0.2) -> VerticalDeadReckoning:
     return VerticalDeadReckoning(
         t_ns=0, height_m=0.6, vz_up_mps=0.0, hover_gas_counts=100.0, gas_counts=100.0,
-        noise_mps2=noise,
+        noise_mps2=noise, g_mps2=G,
     )  # fmt: skip
 
 

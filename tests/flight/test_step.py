@@ -15,6 +15,9 @@ from mkflight.flight.step import MAX_HOLD_OFFSET_M, FlightCore
 from mkflight.msgs import ImuSample, Pose2D
 from mkflight.safety.failsafe import FailsafeAction
 
+#: How long a landing without the hat may last before control goes to the pilot.
+DESCENT_MAX_S = DescentParams.from_config(Config().control, Config().mk.g_mps2).max_s
+
 CFG = Config()
 STEP_NS = 53_248_000
 ANY = st.floats(allow_nan=True, allow_infinity=True, width=64)
@@ -176,7 +179,7 @@ def test_a_descent_that_finds_no_floor_hands_to_the_pilot_for_good() -> None:
     core = FlightCore(Config())
     t_ns = fly_to_hold(core)
     outs = []
-    for _ in range(int((DescentParams().max_s + 3.0) * 1e9 / STEP_NS)):  # the laser is gone
+    for _ in range(int((DESCENT_MAX_S + 3.0) * 1e9 / STEP_NS)):  # the laser is gone
         t_ns += STEP_NS
         sinking = level_imu(t_ns, acc_z_mps2=-8.81)
         outs.append(core.imu_step(sinking, PhaseRequests(takeoff=True, handshake_ok=True)))
@@ -201,7 +204,7 @@ def test_a_vehicle_that_does_not_move_when_the_gas_falls_rests_on_the_floor() ->
     core = FlightCore(Config())
     t_ns = fly_to_hold(core)
     outs = []
-    for _ in range(int(DescentParams().max_s * 1e9 / STEP_NS)):
+    for _ in range(int(DESCENT_MAX_S * 1e9 / STEP_NS)):
         t_ns += STEP_NS
         outs.append(core.imu_step(level_imu(t_ns), PhaseRequests(takeoff=True, handshake_ok=True)))
     events = [e for o in outs for e in o.phase_events]

@@ -20,7 +20,7 @@ from mkflight.sim.room import box_room, room_caster
 from mkflight.sim.urg_scene import RoomScene, ScenePose
 from mkflight.sim.urg_server import UrgEmulator
 from mkflight.urg.driver import UrgDriver
-from mkflight.urg.hat import hat_height
+from mkflight.urg.hat import HatSettings, hat_height
 from mkflight.urg.units import step_body_angle_rad
 
 POSE = ScenePose(x_m=0.5, y_m=-0.3, yaw_rad=0.1, height_m=0.6)
@@ -88,7 +88,7 @@ async def test_ranges_are_the_room_and_the_hat_gives_height(emulator: UrgEmulato
     assert front == pytest.approx(2.5 / math.cos(0.1), abs=0.05)
     assert step_body_angle_rad(384) == 0.0
     hat = scan.ranges_m[(steps >= 44) & (steps <= 127)]
-    height = hat_height(hat, 0.0, 0.0)
+    height = hat_height(hat, 0.0, 0.0, HatSettings.from_config(LaserConfig()))
     assert height.valid
     assert height.height_m == pytest.approx(0.6, abs=0.01)
     assert np.isnan(scan.ranges_m).sum() < 40  # error codes and mirror junk only

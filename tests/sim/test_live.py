@@ -28,7 +28,7 @@ from mkflight.mk.units import MkCalibration
 from mkflight.msgs import Scan
 from mkflight.sim.live import FAULT_KINDS, Fault, LiveSim, parse_fault, parse_faults
 from mkflight.urg.driver import UrgDriver
-from mkflight.urg.hat import hat_height
+from mkflight.urg.hat import HatSettings, hat_height
 
 CFG = Config(sim=SimConfig(vehicle=SimVehicleConfig(gusts=False)))
 FRONT_STEP, LEFT_STEP = 384, 640  # straight ahead; 90 degrees to the left
@@ -62,7 +62,9 @@ async def open_urg(path: str, cfg: Config = CFG) -> UrgDriver:
 def hat(scan: Scan, cfg: Config = CFG) -> float:
     lo, hi = cfg.laser.hat_steps
     i0 = lo - scan.first_step
-    h = hat_height(scan.ranges_m[i0 : i0 + hi - lo + 1], 0.0, 0.0)
+    h = hat_height(
+        scan.ranges_m[i0 : i0 + hi - lo + 1], 0.0, 0.0, HatSettings.from_config(Config().laser)
+    )
     assert h.valid
     return h.height_m
 

@@ -10,7 +10,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from mkflight.config import LaserConfig
 from mkflight.urg.hat import HatSettings, hat_height
+
+#: The configured hat's thresholds (the defaults of the ``laser`` section).
+HAT = HatSettings.from_config(LaserConfig())
 
 N_HAT = 84  # steps 44..127
 OFFSET_M = 0.05
@@ -31,7 +35,7 @@ def beams(
 
 @pytest.mark.parametrize("height_m", [0.0, 0.3, 0.6, 1.5])
 def test_level_height_within_noise(height_m: float) -> None:
-    h = hat_height(beams(height_m), 0.0, 0.0)
+    h = hat_height(beams(height_m), 0.0, 0.0, HAT)
     assert h.valid
     assert h.height_m == pytest.approx(height_m, abs=0.005)  # 1 cm noise, 84 beams
     assert h.beams_used >= 80
@@ -39,17 +43,17 @@ def test_level_height_within_noise(height_m: float) -> None:
 
 @pytest.mark.parametrize(("pitch", "roll"), [(0.2, 0.0), (0.0, -0.25), (-0.15, 0.2)])
 def test_tilt_is_projected_eq26(pitch: float, roll: float) -> None:
-    h = hat_height(beams(0.6, pitch, roll, noise_m=0.0), pitch, roll)
+    h = hat_height(beams(0.6, pitch, roll, noise_m=0.0), pitch, roll, HAT)
     assert h.valid
     assert h.height_m == pytest.approx(0.6, abs=1e-9)
-    level = hat_height(beams(0.6, pitch, roll, noise_m=0.0), 0.0, 0.0)
+    level = hat_height(beams(0.6, pitch, roll, noise_m=0.0), 0.0, 0.0, HAT)
     assert level.height_m > 0.6 + 0.005  # ignoring the tilt would overestimate
 
 
 def test_invalid_beams_are_not_distances() -> None:
     r = beams(0.6)
     r[::2] = np.nan  # error codes, already NaN
-    h = hat_height(r, 0.0, 0.0)
+    h = hat_height(r, 0.0, 0.0, HAT)
     assert h.valid
     assert h.height_m == pytest.approx(0.6, abs=0.01)
     assert h.beams_valid == N_HAT // 2
@@ -58,7 +62,7 @@ def test_invalid_beams_are_not_distances() -> None:
 def test_too_few_valid_beams_is_no_height() -> None:
     r = np.full(N_HAT, np.nan)
     r[:5] = 0.65
-    h = hat_height(r, 0.0, 0.0)
+    h = hat_height(r, 0.0, 0.0, HAT)
     assert not h.valid
     assert math.isnan(h.height_m)
     assert "5 of 84 hat beams valid" in h.reason
@@ -68,7 +72,7 @@ def test_outlier_beams_are_rejected() -> None:
     r = beams(0.6)
     r[:15] = 0.12  # a leg in the folded beam
     r[15:20] = 3.9  # specular returns
-    h = hat_height(r, 0.0, 0.0)
+    h = hat_height(r, 0.0, 0.0, HAT)
     assert h.valid
     assert h.height_m == pytest.approx(0.6, abs=0.01)
     assert h.beams_used <= N_HAT - 20
@@ -76,19 +80,19 @@ def test_outlier_beams_are_rejected() -> None:
 
 def test_disagreeing_beams_give_no_height() -> None:
     r = np.concatenate([beams(0.6)[: N_HAT // 2], beams(1.2)[: N_HAT // 2]])
-    h = hat_height(r, 0.0, 0.0)
+    h = hat_height(r, 0.0, 0.0, HAT)
     assert not h.valid
     assert "spread" in h.reason or "disagree" in h.reason
 
 
 @pytest.mark.parametrize(("pitch", "roll"), [(math.nan, 0.0), (0.0, math.inf), (0.9, 0.0)])
 def test_unknown_or_steep_attitude_gives_no_height(pitch: float, roll: float) -> None:
-    assert not hat_height(beams(0.6), pitch, roll).valid
+    assert not hat_height(beams(0.6), pitch, roll, HAT).valid
 
 
 def test_implausible_negative_height_is_no_height() -> None:
     r = np.full(N_HAT, 0.021)  # far shorter than the hat's own standing range
-    h = hat_height(r, 0.0, 0.0, HatSettings(offset_m=0.3))
+    h = hat_height(r, 0.0, 0.0, HatSettings(offset_m=0.3, min_range_m=HAT.min_range_m))
     assert not h.valid
     assert "implausible" in h.reason
 
@@ -105,7 +109,7 @@ def test_implausible_negative_height_is_no_height() -> None:
 def test_never_raises_and_never_a_wrong_kind_of_value(
     r: np.ndarray, pitch: float, roll: float
 ) -> None:
-    h = hat_height(r, pitch, roll)
+    h = hat_height(r, pitch, roll, HAT)
     if h.valid:
         assert math.isfinite(h.height_m)
         assert h.beams_used >= 8
