@@ -134,7 +134,7 @@ def test_print_lines_stops_at_the_count_and_on_stop(capsys: pytest.CaptureFixtur
             n += 1
             if n == stop_after:
                 stop.set()
-                await asyncio.sleep(3600)  # cancelled by the stop
+                await asyncio.Event().wait()  # never set: cancelled by the stop
             return f"line {n}"
 
         await print_lines(next_line, count, stop)

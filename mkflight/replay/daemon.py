@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 from mkflight.config import Config
@@ -116,6 +117,16 @@ class RecordedMatcher(MatcherWorker):
             compute_s=0.0,
             elapsed_s=0.0,
         )
+
+
+def replay_options(feeder: Feeder, out: Path) -> FlightOptions:
+    """The replayed daemon's options: the feeder's ports, ``out``, logs not fsynced."""
+    return FlightOptions(
+        mk_port=feeder.path("mk"),
+        laser_port=feeder.path("laser"),
+        log_dir=out,
+        durable_logs=False,
+    )
 
 
 class ReplayPolicy(FlightPolicy):

@@ -27,11 +27,11 @@ import msgspec
 
 from mkflight.config import Config, apply_override, config_from_dict, parse_override
 from mkflight.errors import ConfigError, ReplayError
-from mkflight.flight.app import FlightOptions, FlightReport
+from mkflight.flight.app import FlightReport
 from mkflight.logs.flight import extern_control_frames
 from mkflight.logs.raw import read_raw
 from mkflight.replay.compare import compare_commands
-from mkflight.replay.daemon import ReplayApp
+from mkflight.replay.daemon import ReplayApp, replay_options
 from mkflight.replay.feeder import Feeder
 from mkflight.replay.inputs import RecordedFlight, read_recorded_flight
 from mkflight.replay.report import ReplayReport, compare_tables, last_rows
@@ -156,12 +156,7 @@ def _replay_app(
     use_recorded_poses: bool,
 ) -> ReplayApp:
     """The daemon on the feeder's ports, writing into ``out``, held to the recording's timing."""
-    opts = FlightOptions(
-        mk_port=feeder.path("mk"),
-        laser_port=feeder.path("laser"),
-        log_dir=out,
-        durable_logs=False,
-    )
+    opts = replay_options(feeder, out)
     return ReplayApp(
         cfg,
         opts,

@@ -21,7 +21,6 @@ from mkflight.config import Config, load_config
 from mkflight.control.phases import Phase
 from mkflight.conversions import NS_PER_S
 from mkflight.errors import ReplayError
-from mkflight.flight.app import FlightOptions
 from mkflight.flight.step import ImuStepOutput
 from mkflight.logs.events import read_events
 from mkflight.logs.flight import extern_control_frames
@@ -32,7 +31,7 @@ from mkflight.logs.table3 import read_table3
 from mkflight.logs.table4 import COLUMNS as TABLE4_COLUMNS
 from mkflight.logs.table4 import read_table4
 from mkflight.replay.compare import compare_commands
-from mkflight.replay.daemon import ReplayApp
+from mkflight.replay.daemon import ReplayApp, replay_options
 from mkflight.replay.feeder import Feeder
 from mkflight.replay.report import TABLES, ReplayReport, SeedComparison
 from mkflight.replay.seed import (
@@ -163,12 +162,7 @@ def _seed_app(
     on_step: Callable[[ImuStepOutput], None],
 ) -> ReplayApp:
     """The daemon on the feeder's model ports, with TABLE III's poses as its matcher."""
-    opts = FlightOptions(
-        mk_port=feeder.path("mk"),
-        laser_port=feeder.path("laser"),
-        log_dir=out,
-        durable_logs=False,
-    )
+    opts = replay_options(feeder, out)
     return ReplayApp(
         cfg,
         opts,

@@ -62,12 +62,15 @@ def test_a_signal_inside_stop_signals_reaches_the_handler() -> None:
     got: list[tuple[StopRequest, str]] = []
 
     async def main() -> None:
-        with stop_signals(asyncio.get_running_loop(), lambda r, n: got.append((r, n))):
+        arrived = asyncio.Event()
+
+        def handler(request: StopRequest, name: str) -> None:
+            got.append((request, name))
+            arrived.set()
+
+        with stop_signals(asyncio.get_running_loop(), handler):
             os.kill(os.getpid(), signal.SIGHUP)
-            for _ in range(100):
-                if got:
-                    break
-                await asyncio.sleep(0.01)
+            await asyncio.wait_for(arrived.wait(), timeout=10.0)
 
     asyncio.run(main())
     assert got == [(StopRequest.SIGTERM, "SIGHUP")]
