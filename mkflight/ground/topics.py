@@ -18,6 +18,7 @@ SCAN: Final = "/scan"  #: the laser scan in the vehicle frame (foxglove.LaserSca
 POSE: Final = "/pose"  #: the estimated pose in the world frame (foxglove.PoseInFrame)
 SETPOINT: Final = "/setpoint"  #: the held set-point in the world frame (foxglove.PoseInFrame)
 TF: Final = "/tf"  #: world -> vehicle frame transform for the 3D panel
+TF_STATIC: Final = "/tf_static"  #: map -> world, once (the export)
 HEIGHT: Final = "/height"
 ATTITUDE: Final = "/attitude"
 VELOCITY: Final = "/velocity"  #: the velocity estimate
@@ -31,3 +32,4 @@ TRUTH: Final = "/truth"  #: the simulator's ground truth, when the folder has it
 # turned z up (x forward, y left) for viewers that assume a z-up world.
 WORLD_FRAME: Final = "world"
 VEHICLE_FRAME: Final = "vehicle"
+MAP_FRAME: Final = "map"
