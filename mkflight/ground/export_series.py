@@ -35,7 +35,8 @@ MikroKopter documentation):
   ``config`` counts.
 - ``/phase`` and ``/failsafe``: the ``phase`` and ``failsafe`` events.
 - ``/truth``: the simulator's ``truth.txt`` rows (x, y in W, height up), when present.
-- ``/tf_static``: map -> world once, at the first message's time (W turned z up).
+- ``/tf_static``: map -> world once, at the first message's time (W turned z up), with
+  ``/tf`` or ``/scan``.
 
 Time: ``t_ns`` is the flight clock's time of the record (host monotonic on the vehicle,
 the simulator's clock in ``sim hover``), as the events, the raw records and the truth
@@ -381,7 +382,7 @@ def flight_series(
             cols = {k: tr[k] for k in ("x_m", "y_m", "height_m")}
             out.append(_series(topics.TRUTH, "Truth", tr["t_s"], t0, cols))
     out = [s for s in out if len(s)]
-    if out and not tables_only:
+    if any(s.topic in (topics.SCAN, topics.TF) for s in out):  # frames to show them in
         out.append(static_transform(min(int(s.t_ns[0]) for s in out)))
     return out
 
