@@ -9,6 +9,8 @@
   ``flight.json``'s summary (the README's schema section is generated from them).
 * :mod:`~mkflight.logs.flight` -- :func:`load_flight`: a whole folder as numpy arrays
   with named columns, for your own analysis.
+* :mod:`~mkflight.logs.scans` -- :func:`read_scans`: every scan of ``laser.raw``, decoded
+  as the driver decoded it, with its scan event's pose.
 
 Writers create their file in a flight folder and flush every row; readers raise
 :class:`mkflight.errors.ReplayError` naming the file and line, and drop (and report) a
@@ -34,6 +36,7 @@ from mkflight.logs.flight_json import (
     with_summary,
     write_flight_json,
 )
+from mkflight.logs.scans import ScanLog, read_scans
 from mkflight.logs.schema import (
     KINDS,
     FlightEvent,
@@ -58,6 +61,7 @@ __all__ = [
     "FlightSummary",
     "HoverSummary",
     "KnownEvent",
+    "ScanLog",
     "Table3Row",
     "Table3Writer",
     "Table4Row",
@@ -72,6 +76,7 @@ __all__ = [
     "new_flight_info",
     "read_events",
     "read_flight_json",
+    "read_scans",
     "read_table3",
     "read_table4",
     "with_summary",

@@ -1,10 +1,11 @@
 """One flight folder as numpy arrays with named columns, for your own analysis (SPEC §6).
 
 :func:`load_flight` reads what a folder holds with the format readers of this package
-(TABLE III/IV, ``events.jsonl``, ``flight.json``, ``mk.raw``) plus the simulator's
-``truth.txt``, and decodes the MK port's bytes as the link does: every ExternControl
-written and every DebugOut read, the latter in SI with the flight's own calibration
-(``config.mk`` in ``flight.json``; :func:`mkflight.mk.units.imu_from_debug`).
+(TABLE III/IV, ``events.jsonl``, ``flight.json``, ``mk.raw``, ``laser.raw``) plus the
+simulator's ``truth.txt``, and decodes the MK port's bytes as the link does: every
+ExternControl written and every DebugOut read, the latter in SI with the flight's own
+calibration (``config.mk`` in ``flight.json``; :func:`mkflight.mk.units.imu_from_debug`);
+and the URG's as the driver does: every scan (:mod:`mkflight.logs.scans`).
 
 Time base: every ``t_s`` (and :attr:`FlightData.imu_t_s`, :attr:`FlightData.laser_t_s`)
 is seconds since :attr:`FlightData.t0_ns` on the flight's clock (host monotonic on the
@@ -45,6 +46,7 @@ from mkflight.logs._file import read_lines
 from mkflight.logs._table import TableData
 from mkflight.logs.events import Event, read_events
 from mkflight.logs.raw import RawRecording, read_raw
+from mkflight.logs.scans import ScanLog, laser_config, scan_log
 from mkflight.logs.schema import KINDS, KnownEvent, Scan, Step, UnknownSummary
 from mkflight.mk.codec import ADDR_FC, Frame, FrameParser, encode_frame
 from mkflight.mk.messages import CMD_DEBUG_ANSWER, CMD_EXTERN, DebugOut, ExternControl
@@ -138,6 +140,9 @@ class FlightData:
         commands: every ExternControl written to the FC (:data:`COMMAND_DTYPE`).
         samples: every DebugOut read from the FC in SI (:data:`SAMPLE_DTYPE`).
         truth: the simulator's ``truth.txt`` (:data:`TRUTH_DTYPE`), None if absent.
+        laser_scans: every scan of ``laser.raw``, decoded as the driver decoded it, with
+            the pose and height of its ``scan`` event (:class:`~mkflight.logs.scans.ScanLog`,
+            times on ``t0_ns``); None if the folder has no ``laser.raw``.
         info: ``flight.json`` (``log_format``, ``config``, the typed ``summary``).
         events: every event, as :func:`mkflight.logs.events.read_events` gives them
             (typed; an unknown kind or a line that does not fit its kind is an
@@ -157,6 +162,7 @@ class FlightData:
     commands: Array
     samples: Array
     truth: Array | None
+    laser_scans: ScanLog | None
     info: flight_json.FlightInfo | None
     events: list[Event]
     warnings: tuple[str, ...]
@@ -224,6 +230,7 @@ def load_flight(folder: str | Path) -> FlightData:
         if info is None and len(samples):
             warnings.append(f"{path}: no flight.json: DebugOut converted with the defaults")
     truth = _read_truth(path / TRUTH, t0_ns, warnings) if (path / TRUTH).is_file() else None
+    laser_scans = _laser_scans(laser_raw, events, info, path, t0, warnings)
     return FlightData(
         path=path,
         t0_ns=t0_ns,
@@ -236,6 +243,7 @@ def load_flight(folder: str | Path) -> FlightData:
         commands=commands,
         samples=samples,
         truth=truth,
+        laser_scans=laser_scans,
         info=info,
         events=events,
         warnings=tuple(warnings),
@@ -303,6 +311,23 @@ def _raw(path: Path, warnings: list[str]) -> RawRecording | None:
     if rec.warning is not None:
         warnings.append(rec.warning)
     return rec
+
+
+def _laser_scans(
+    rec: RawRecording | None,
+    events: list[Event],
+    info: flight_json.FlightInfo | None,
+    path: Path,
+    t0_ns: int,
+    warnings: list[str],
+) -> ScanLog | None:
+    """The scans of ``laser.raw`` with their events' poses, stamped with the laser config flown."""
+    if rec is None:
+        return None
+    laser = None if info is None else laser_config(info.config, path / flight_json.FILE_NAME)
+    scans = scan_log(rec, events, laser, t0_ns)
+    warnings.extend(scans.warnings)
+    return scans
 
 
 def _by_index(index: Array, times: dict[int, float]) -> npt.NDArray[np.float64]:
