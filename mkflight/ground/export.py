@@ -176,8 +176,9 @@ def write_mcap(out: Path, series: Sequence[Series], *, ros2: bool, force: bool) 
 
 
 def _scans(flight: FlightData) -> ScanLog | None:
-    """The flight's scans (``laser.raw``), None without one."""
-    return None
+    """The flight's scans (``laser.raw``), the beams of its scan plane; None without one."""
+    scans = flight.laser_scans
+    return None if scans is None else scans.only_steps(*scans.scan_steps)
 
 
 def export_flight(

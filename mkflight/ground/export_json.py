@@ -82,7 +82,12 @@ SCHEMA_NAMES: Final = {
     "MikoImu": "sensor_msgs/mikoImu",
     "MikoCmd": "sensor_msgs/mikoCmd",
 }
-_JSON_TYPE: Final = {"float64": ["number", "null"], "int32": "integer", "string": "string"}
+_JSON_TYPE: Final = {
+    "float64": ["number", "null"],
+    "int32": "integer",
+    "int64": "integer",
+    "string": "string",
+}
 _DESCRIPTION: Final = {
     "Pose2D": "TABLE V: the laser pose in the world frame (m, rad)",
     "MikoImu": "TABLE VI: attitude (rad) and specific force (m/s^2) in the body frame",
@@ -136,7 +141,7 @@ def _shaped(kind: str, row: dict[str, Any], t_ns: int) -> dict[str, Any]:
         ranges = [_finite(r) for r in row["ranges_m"]]
         start = row["angle_min_rad"]
         return {
-            "timestamp": _time(t_ns),
+            "timestamp": _time(row["stamp_ns"]),
             "frame_id": topics.VEHICLE_FRAME,
             "pose": {"position": _xyz(0.0, 0.0, 0.0), "orientation": _quat(quaternion())},
             "start_angle": start,

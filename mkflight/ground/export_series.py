@@ -19,8 +19,11 @@ MikroKopter documentation):
   ``mk.raw`` (the original system's two tables alone) gets one per TABLE IV row instead:
   ``ControlPitch``, ``ControlRoll``, ``ControlYaw``, and ``throttle`` unknown
   (:data:`NO_THROTTLE`), since TABLE IV records no commanded gas.
-- ``/scan``: every scan of ``laser.raw`` (ranges in m, NaN for the URG's error codes),
-  at the time the scan was taken, in the vehicle frame.
+- ``/scan``: every scan of ``laser.raw`` (:func:`mkflight.logs.scans.read_scans`), the
+  beams of ``laser.scan_steps`` (the scan plane; the hat's beams give ``/height``), in m,
+  NaN for the URG's error codes, in the vehicle frame. Its log time is the ``laser.raw``
+  read that completed the reply (when the flight had it); its ``timestamp`` (``header.stamp``)
+  is the driver's stamp, when the front step was measured (the ``scan`` event's ``t_ns``).
 - ``/pose`` and ``/tf`` (world -> vehicle): every ``step`` event with a position: ``x_m``,
   ``y_m``, height up as ``z = -height_m`` (W is z down; 0 while the height is unknown),
   and the heading of the latest TABLE III row (0 before the first). Attitude is not in
@@ -84,6 +87,8 @@ class ScanLog(Protocol):
     @property
     def t_ns(self) -> npt.NDArray[np.int64]: ...
     @property
+    def stamp_t_ns(self) -> npt.NDArray[np.int64]: ...
+    @property
     def angle_min_rad(self) -> float: ...
     @property
     def angle_increment_rad(self) -> float: ...
@@ -91,7 +96,7 @@ class ScanLog(Protocol):
     def ranges_m(self) -> npt.NDArray[np.float64]: ...
 
 
-FieldType = Literal["float64", "int32", "string"]
+FieldType = Literal["float64", "int32", "int64", "string"]
 
 #: ``/mikoCmd``'s throttle when the folder does not record it (TABLE IV has no gas
 #: column); TABLE VII's throttle is 0-512, so no real command has it.
@@ -120,7 +125,15 @@ KINDS: Final[dict[str, Kind]] = {
             tuple((n, _F) for n in ("pitchAngle", "rollAngle", "yawAngle", "AccX", "AccY", "AccZ")),
         ),
         Kind("MikoCmd", tuple((n, "int32") for n in ("pitch", "roll", "yaw", "throttle"))),
-        Kind("LaserScan", (("angle_min_rad", _F), ("angle_increment_rad", _F), ("ranges_m", _F))),
+        Kind(
+            "LaserScan",
+            (
+                ("stamp_ns", "int64"),
+                ("angle_min_rad", _F),
+                ("angle_increment_rad", _F),
+                ("ranges_m", _F),
+            ),
+        ),
         Kind("Pose", (("x_m", _F), ("y_m", _F), ("z_m", _F), ("yaw_rad", _F))),
         Kind("Transform", (("x_m", _F), ("y_m", _F), ("z_m", _F), ("yaw_rad", _F))),
         Kind("StaticTransform", (("roll_rad", _F),)),
@@ -226,9 +239,10 @@ def miko_cmd_from_table4(imu: Array, t_s: Array, t0_ns: int) -> Series:
 
 
 def scan_series(scans: ScanLog) -> Series:
-    """``/scan``: every scan at its own ``t_ns`` (already the flight clock's)."""
+    """``/scan``: every scan at the read that completed it, stamped when it was taken."""
     n = len(scans.t_ns)
     cols = {
+        "stamp_ns": np.asarray(scans.stamp_t_ns, dtype=np.int64),
         "angle_min_rad": np.full(n, scans.angle_min_rad),
         "angle_increment_rad": np.full(n, scans.angle_increment_rad),
         "ranges_m": np.asarray(scans.ranges_m, dtype=np.float64).reshape(n, -1),

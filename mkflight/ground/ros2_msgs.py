@@ -123,12 +123,12 @@ def _quat(q: tuple[float, float, float, float]) -> dict[str, float]:
     return dict(zip(("x", "y", "z", "w"), q, strict=True))
 
 
-def _scan(row: dict[str, Any], t_ns: int) -> dict[str, Any]:
+def _scan(row: dict[str, Any]) -> dict[str, Any]:
     ranges = row["ranges_m"]
     start, step = row["angle_min_rad"], row["angle_increment_rad"]
     period_s = URG_04LX.scan_period_ns / NS_PER_S
     return {
-        "header": _header(t_ns, topics.VEHICLE_FRAME),
+        "header": _header(row["stamp_ns"], topics.VEHICLE_FRAME),
         "angle_min": start,
         "angle_max": start + (len(ranges) - 1) * step,
         "angle_increment": step,
@@ -159,7 +159,7 @@ def _transform(
 def _shaped(kind: str, row: dict[str, Any], t_ns: int) -> dict[str, Any]:
     """The standard-type messages: scan, pose, transforms, strings."""
     if kind == "LaserScan":
-        return _scan(row, t_ns)
+        return _scan(row)
     if kind == "StaticTransform":
         q = quaternion(roll_rad=row["roll_rad"])
         return _transform(t_ns, topics.MAP_FRAME, topics.WORLD_FRAME, (0.0, 0.0, 0.0), q)

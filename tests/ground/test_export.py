@@ -43,6 +43,7 @@ from mkflight.logs import table3, table4
 from mkflight.logs.events import read_events
 from mkflight.logs.flight import extern_controls, load_flight
 from mkflight.logs.raw import read_raw
+from mkflight.logs.scans import read_scans
 from mkflight.logs.schema import Failsafe, PhaseChange, Scan, Step
 
 MKFLIGHT = [sys.executable, "-m", "mkflight"]
@@ -173,7 +174,7 @@ def test_the_topics_and_counts_are_the_folders(flight: Folder, exported: dict[st
         *ORIGINAL,
         *(topics.POSE, topics.TF, topics.TF_STATIC, topics.SETPOINT, topics.HEIGHT),
         *(topics.VELOCITY, topics.ATTITUDE, topics.BATTERY, topics.COMMAND),
-        *(topics.PHASE, topics.FAILSAFE, topics.TRUTH),
+        *(topics.PHASE, topics.FAILSAFE, topics.TRUTH, topics.SCAN),
     }
     counts = {topic: len(m) for topic, m in msgs.items()}
     assert counts == exported["summary"]["counts"]
@@ -355,11 +356,38 @@ def test_tables_exports_only_the_original_topics_of_a_whole_flight(
 # ----- the scan ---------------------------------------------------------------------------------
 
 
+def test_the_scans_of_laser_raw_are_on_scan(
+    flight: Folder, exported: dict[str, Any], exported_ros2: dict[str, Any]
+) -> None:
+    scans = read_scans(flight.path)
+    plane = scans.only_steps(*scans.scan_steps)  # the hat's beams give /height instead
+    beams = plane.ranges_m.shape[1]
+    assert 400 < beams < scans.ranges_m.shape[1]
+    fox = exported["messages"][topics.SCAN]
+    ros = exported_ros2["messages"][topics.SCAN]
+    assert len(fox) == len(ros) == len(scans) > 50
+    assert [m.log_time for m in fox] == [m.log_time for m in ros] == scans.t_ns.tolist()
+    stamps = [m.value["timestamp"]["sec"] * NS + m.value["timestamp"]["nsec"] for m in fox]
+    assert stamps == scans.stamp_t_ns.tolist()
+    assert {s.t_ns for s in flight.scans} <= set(stamps)  # each scan event's scan is there
+    for i in (0, len(fox) // 2, len(fox) - 1):
+        v, r = fox[i].value, ros[i].value
+        assert v["start_angle"] == plane.angle_min_rad
+        assert r.angle_min == pytest.approx(plane.angle_min_rad, abs=1e-6)  # float32
+        want = plane.ranges_m[i]
+        got = np.array([math.nan if x is None else x for x in v["ranges"]])
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_allclose(np.array(r.ranges), want, rtol=1e-6)
+        assert r.header.stamp.sec * NS + r.header.stamp.nanosec == stamps[i]
+    assert np.isfinite(plane.ranges_m).mean() > 0.5  # the walls are seen
+
+
 @dataclass(frozen=True)
 class FakeScans:
     """A ScanLog's fields that ``/scan`` reads."""
 
     t_ns: npt.NDArray[np.int64]
+    stamp_t_ns: npt.NDArray[np.int64]
     angle_min_rad: float
     angle_increment_rad: float
     ranges_m: npt.NDArray[np.float64]
@@ -370,7 +398,7 @@ def _scans(n: int, beams: int, t0_ns: int) -> FakeScans:
     ranges = rng.uniform(0.02, 5.6, (n, beams))
     ranges[:, 3] = np.nan  # an error code
     t = t0_ns + np.arange(n, dtype=np.int64) * 100_000_000 + 12_345
-    return FakeScans(t, -2.08, 0.0061359, ranges)
+    return FakeScans(t, t - 30_000_000, -2.08, 0.0061359, ranges)
 
 
 @pytest.mark.parametrize("ros2", [False, True], ids=["json", "ros2"])
@@ -389,7 +417,7 @@ def test_scans_are_laser_scans_in_the_vehicle_frame(
         want = scans.ranges_m[i]
         if ros2:
             assert v.header.frame_id == topics.VEHICLE_FRAME
-            assert v.header.stamp.sec * NS + v.header.stamp.nanosec == scans.t_ns[i]
+            assert v.header.stamp.sec * NS + v.header.stamp.nanosec == scans.stamp_t_ns[i]
             assert v.angle_min == pytest.approx(-2.08, abs=1e-6)
             assert v.angle_max == pytest.approx(-2.08 + 681 * 0.0061359, abs=1e-6)
             got = np.array(v.ranges)
@@ -397,6 +425,8 @@ def test_scans_are_laser_scans_in_the_vehicle_frame(
         else:
             assert msgs[i].schema == "foxglove.LaserScan"
             assert v["frame_id"] == topics.VEHICLE_FRAME
+            ts = v["timestamp"]
+            assert ts["sec"] * NS + ts["nsec"] == scans.stamp_t_ns[i]
             assert v["start_angle"] == -2.08
             assert v["end_angle"] == pytest.approx(-2.08 + 681 * 0.0061359)
             assert len(v["ranges"]) == 682
@@ -545,11 +575,13 @@ def test_scan_series_sorts_by_time_and_keeps_each_beam() -> None:
     scans = _scans(5, 10, 1000)
     shuffled = FakeScans(
         scans.t_ns[::-1].copy(),
+        scans.stamp_t_ns[::-1].copy(),
         scans.angle_min_rad,
         scans.angle_increment_rad,
         scans.ranges_m[::-1],
     )
     s = scan_series(shuffled)
     assert s.t_ns.tolist() == scans.t_ns.tolist()
+    assert s.columns["stamp_ns"].tolist() == scans.stamp_t_ns.tolist()
     np.testing.assert_array_equal(s.columns["ranges_m"], scans.ranges_m)
     assert s.row(0)["angle_min_rad"] == -2.08
