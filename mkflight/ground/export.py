@@ -6,7 +6,10 @@ What goes on which topic, with which fields, from which record, and on which clo
 documentation) from TABLE III, TABLE IV and the ExternControls written; ``/scan`` from
 ``laser.raw``; the estimate, set-points, phases, failsafes, DebugOut and ``truth`` from
 the rest. Every message's ``log_time`` and ``publish_time`` (and its ``timestamp`` or
-``header.stamp``) are the flight clock's ``t_ns`` of the record it comes from.
+``header.stamp``) are the flight clock's ``t_ns`` of the record it comes from (host
+monotonic on the vehicle, the simulator's clock in ``sim hover``; nominal times from 0 for
+a folder of the two tables alone). A scan is logged when it was read and stamped when it
+was taken, as a ROS driver does.
 
 Encodings:
 

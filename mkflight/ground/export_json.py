@@ -18,7 +18,14 @@ import math
 from typing import Any, Final
 
 from mkflight.ground import topics
-from mkflight.ground.export_series import KINDS, NO_THROTTLE, Kind, quaternion, stamp
+from mkflight.ground.export_series import (
+    KINDS,
+    MAP_TO_WORLD_ROLL_RAD,
+    NO_THROTTLE,
+    Kind,
+    quaternion,
+    stamp,
+)
 
 __all__ = ["SCHEMA_NAMES", "json_message", "json_schema"]
 
@@ -155,7 +162,7 @@ def _shaped(kind: str, row: dict[str, Any], t_ns: int) -> dict[str, Any]:
             "parent_frame_id": topics.MAP_FRAME,
             "child_frame_id": topics.WORLD_FRAME,
             "translation": _xyz(0.0, 0.0, 0.0),
-            "rotation": _quat(quaternion(roll_rad=row["roll_rad"])),
+            "rotation": _quat(quaternion(roll_rad=MAP_TO_WORLD_ROLL_RAD)),
         }
     position = _xyz(row["x_m"], row["y_m"], row["z_m"])
     orientation = _quat(quaternion(yaw_rad=row["yaw_rad"]))

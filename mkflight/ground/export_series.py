@@ -67,6 +67,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "KINDS",
+    "MAP_TO_WORLD_ROLL_RAD",
     "NO_THROTTLE",
     "Kind",
     "Series",
@@ -98,6 +99,8 @@ class ScanLog(Protocol):
 
 FieldType = Literal["float64", "int32", "int64", "string"]
 
+#: map -> world: W (z down) turned z up by a half turn about x (x forward, y left).
+MAP_TO_WORLD_ROLL_RAD: Final = math.pi
 #: ``/mikoCmd``'s throttle when the folder does not record it (TABLE IV has no gas
 #: column); TABLE VII's throttle is 0-512, so no real command has it.
 NO_THROTTLE: Final = -1
@@ -136,7 +139,7 @@ KINDS: Final[dict[str, Kind]] = {
         ),
         Kind("Pose", (("x_m", _F), ("y_m", _F), ("z_m", _F), ("yaw_rad", _F))),
         Kind("Transform", (("x_m", _F), ("y_m", _F), ("z_m", _F), ("yaw_rad", _F))),
-        Kind("StaticTransform", (("roll_rad", _F),)),
+        Kind("StaticTransform", ()),
         Kind("Height", (("height_m", _F), ("vz_up_mps", _F), ("sp_height_m", _F))),
         Kind(
             "Velocity",
@@ -365,13 +368,8 @@ def original_series(flight: FlightData) -> list[Series]:
 
 
 def static_transform(t_ns: int) -> Series:
-    """``/tf_static``: map -> world, W turned z up (a half turn about x), at ``t_ns``."""
-    return Series(
-        topics.TF_STATIC,
-        "StaticTransform",
-        np.array([t_ns], dtype=np.int64),
-        {"roll_rad": np.array([math.pi])},
-    )
+    """``/tf_static``: map -> world (:data:`MAP_TO_WORLD_ROLL_RAD`), once, at ``t_ns``."""
+    return Series(topics.TF_STATIC, "StaticTransform", np.array([t_ns], dtype=np.int64), {})
 
 
 def flight_series(

@@ -3,7 +3,9 @@
 Standard types where ROS 2 has one, so that ``ros2 bag play`` and RViz need nothing
 built: ``/scan`` ``sensor_msgs/msg/LaserScan``, ``/pose2D`` ``geometry_msgs/msg/Pose2D``
 (TABLE V), ``/pose`` and ``/setpoint`` ``geometry_msgs/msg/PoseStamped``, ``/tf`` and
-``/tf_static`` ``tf2_msgs/msg/TFMessage``, ``/phase`` and ``/failsafe``
+``/tf_static`` ``tf2_msgs/msg/TFMessage`` (each ``/tf`` message holds map -> world as
+well as world -> vehicle: ``ros2 bag play`` offers ``/tf_static`` with the default QoS,
+which RViz's latched static listener does not take), ``/phase`` and ``/failsafe``
 ``std_msgs/msg/String`` (its ``data`` the JSON object the default export writes). Every
 ``header.stamp`` is the recorded time (:mod:`mkflight.ground.export_series`).
 
@@ -25,7 +27,13 @@ from typing import Any, Final
 
 from mkflight.conversions import NS_PER_S
 from mkflight.ground import topics
-from mkflight.ground.export_series import KINDS, NO_THROTTLE, quaternion, stamp
+from mkflight.ground.export_series import (
+    KINDS,
+    MAP_TO_WORLD_ROLL_RAD,
+    NO_THROTTLE,
+    quaternion,
+    stamp,
+)
 from mkflight.urg.units import URG_04LX
 
 __all__ = ["DEFINITIONS", "TYPE_NAMES", "msgdef", "ros2_field", "ros2_message"]
@@ -141,19 +149,22 @@ def _scan(row: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def _transform(
+def _stamped(
     t_ns: int, parent: str, child: str, xyz: tuple[float, ...], q: tuple[float, float, float, float]
 ) -> dict[str, Any]:
+    """A ``geometry_msgs/TransformStamped``."""
     x, y, z = xyz
     return {
-        "transforms": [
-            {
-                "header": _header(t_ns, parent),
-                "child_frame_id": child,
-                "transform": {"translation": {"x": x, "y": y, "z": z}, "rotation": _quat(q)},
-            }
-        ]
+        "header": _header(t_ns, parent),
+        "child_frame_id": child,
+        "transform": {"translation": {"x": x, "y": y, "z": z}, "rotation": _quat(q)},
     }
+
+
+def _map_to_world(t_ns: int) -> dict[str, Any]:
+    """The transform map -> world: W turned z up (a half turn about x)."""
+    q = quaternion(roll_rad=MAP_TO_WORLD_ROLL_RAD)
+    return _stamped(t_ns, topics.MAP_FRAME, topics.WORLD_FRAME, (0.0, 0.0, 0.0), q)
 
 
 def _shaped(kind: str, row: dict[str, Any], t_ns: int) -> dict[str, Any]:
@@ -161,14 +172,14 @@ def _shaped(kind: str, row: dict[str, Any], t_ns: int) -> dict[str, Any]:
     if kind == "LaserScan":
         return _scan(row)
     if kind == "StaticTransform":
-        q = quaternion(roll_rad=row["roll_rad"])
-        return _transform(t_ns, topics.MAP_FRAME, topics.WORLD_FRAME, (0.0, 0.0, 0.0), q)
+        return {"transforms": [_map_to_world(t_ns)]}
     if kind in ("Phase", "Failsafe"):
         return {"data": json.dumps(row, allow_nan=False)}
     xyz = (row["x_m"], row["y_m"], row["z_m"])
     q = quaternion(yaw_rad=row["yaw_rad"])
-    if kind == "Transform":
-        return _transform(t_ns, topics.WORLD_FRAME, topics.VEHICLE_FRAME, xyz, q)
+    if kind == "Transform":  # map -> world again: a bag's /tf_static is not latched
+        vehicle = _stamped(t_ns, topics.WORLD_FRAME, topics.VEHICLE_FRAME, xyz, q)
+        return {"transforms": [_map_to_world(t_ns), vehicle]}
     position = dict(zip(("x", "y", "z"), xyz, strict=True))
     return {
         "header": _header(t_ns, topics.WORLD_FRAME),

@@ -301,6 +301,10 @@ def test_ros2_decodes_with_the_same_topics_counts_times_and_values(
         )
     for m in msgs[topics.POSE] + msgs[topics.HEIGHT]:  # headers carry the recorded stamp
         assert m.value.header.stamp.sec * NS + m.value.header.stamp.nanosec == m.log_time
+    for m in msgs[topics.TF][:: max(1, len(msgs[topics.TF]) // 10)]:  # both frames, each time
+        frames = [(t.header.frame_id, t.child_frame_id) for t in m.value.transforms]
+        assert frames == [("map", "world"), ("world", "vehicle")]
+        assert m.value.transforms[0].transform.rotation.x == pytest.approx(1.0)
     phases = [json.loads(m.value.data)["phase"] for m in msgs[topics.PHASE]]
     assert phases == [p.to for p in flight.phases]
 
