@@ -24,7 +24,8 @@ def cmd_export(
     Raises:
         ConfigError: ``out`` exists (without ``force``) or its folder is missing (exit 2).
         ReplayError: not a flight folder, or a malformed log naming the file (exit 1).
-        ExportError: the file cannot be written (exit 1).
+        ExportError: ``mcap`` (``mcap-ros2-support``) is not installed, or the file
+            cannot be written (exit 1).
     """
     from mkflight.ground.export import export_flight
 

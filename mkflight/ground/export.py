@@ -47,8 +47,9 @@ if TYPE_CHECKING:
     from mkflight.ground.export_series import ScanLog, Series
     from mkflight.logs.flight import FlightData
 
-__all__ = ["ExportError", "ExportResult", "export_flight", "write_mcap"]
+__all__ = ["ExportError", "ExportResult", "ensure_writers", "export_flight", "write_mcap"]
 
+INSTALL_HINT = "pip install 'mkflight[export]'"
 #: The MCAP ``library`` field of the files written.
 LIBRARY = f"mkflight/{__version__}"
 
@@ -74,6 +75,19 @@ class ExportResult:
     size_bytes: int
     left_out: dict[str, int]
     warnings: tuple[str, ...]
+
+
+def ensure_writers(*, ros2: bool) -> None:
+    """Import the MCAP writer the encoding needs, or raise :class:`ExportError` naming it."""
+    try:
+        if ros2:
+            import mcap_ros2.writer  # noqa: F401
+        else:
+            import mcap.writer  # noqa: F401
+    except ImportError as err:
+        package = "mcap-ros2-support" if ros2 else "mcap"
+        msg = f"the export needs {package}, which is not installed: {INSTALL_HINT}"
+        raise ExportError(msg) from err
 
 
 def check_target(out: Path, *, force: bool) -> None:
@@ -204,13 +218,14 @@ def export_flight(
     Raises:
         ConfigError: ``out`` exists (and not ``force``), or its folder is missing (exit 2).
         ReplayError: not a flight folder, or a malformed log naming the file (exit 1).
-        ExportError: the file cannot be written (exit 1).
+        ExportError: the writer is not installed, or the file cannot be written (exit 1).
     """
     from mkflight.ground.export_series import flight_series, left_out
     from mkflight.logs.flight import load_flight
 
     target = Path(out)
-    check_target(target, force=force)  # a usage error before the work
+    ensure_writers(ros2=ros2)  # the likeliest failures first, before the work
+    check_target(target, force=force)
     flight = load_flight(log_dir)
     scans = None if tables_only else _scans(flight)
     series = flight_series(flight, scans, tables_only=tables_only)

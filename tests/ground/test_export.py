@@ -187,6 +187,9 @@ def test_the_topics_and_counts_are_the_folders(flight: Folder, exported: dict[st
     assert counts[topics.TRUTH] == flight.truth_rows > 100
     with_pose = [s for s in flight.steps if s.x_m is not None and s.y_m is not None]
     assert counts[topics.POSE] == counts[topics.TF] == len(with_pose)
+    with_sp = [s for s in flight.steps if s.sp_x_m is not None and s.sp_y_m is not None]
+    assert counts[topics.SETPOINT] == len(with_sp) > 50
+    assert counts[topics.TF_STATIC] == 1
     assert exported["summary"]["left_out"] == {}
 
 
@@ -511,6 +514,16 @@ def test_a_failure_while_writing_leaves_no_half_file(
         export_flight(folder, out_dir / "old.mcap")
     assert [p.name for p in out_dir.iterdir()] == ["old.mcap"]
     assert (out_dir / "old.mcap").read_bytes() == b"old"
+
+
+@pytest.mark.parametrize(("ros2", "module"), [(False, "mcap.writer"), (True, "mcap_ros2.writer")])
+def test_a_missing_writer_names_the_extra(
+    flight: Folder, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, ros2: bool, module: str
+) -> None:
+    monkeypatch.setitem(sys.modules, module, None)  # import fails as if not installed
+    with pytest.raises(export_module.ExportError, match=r"mkflight\[export\]"):
+        export_flight(_tables_only(flight, tmp_path), tmp_path / "x.mcap", ros2=ros2)
+    assert not (tmp_path / "x.mcap").exists()
 
 
 # ----- the pure conversions --------------------------------------------------------------------
