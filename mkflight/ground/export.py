@@ -44,7 +44,7 @@ from mkflight import __version__
 from mkflight.errors import ConfigError, MkflightError
 
 if TYPE_CHECKING:
-    from mkflight.ground.export_series import ScanLog, Series
+    from mkflight.ground.export_series import Scans, Series
     from mkflight.logs.flight import FlightData
 
 __all__ = ["ExportError", "ExportResult", "ensure_writers", "export_flight", "write_mcap"]
@@ -192,7 +192,7 @@ def write_mcap(out: Path, series: Sequence[Series], *, ros2: bool, force: bool) 
                 tmp.unlink()
 
 
-def _scans(flight: FlightData) -> ScanLog | None:
+def _scans(flight: FlightData) -> Scans | None:
     """The flight's scans (``laser.raw``), the beams of its scan plane; None without one."""
     scans = flight.laser_scans
     return None if scans is None else scans.only_steps(*scans.scan_steps)

@@ -70,31 +70,46 @@ __all__ = [
     "MAP_TO_WORLD_ROLL_RAD",
     "NO_THROTTLE",
     "Kind",
+    "Scans",
     "Series",
     "flight_series",
+    "left_out",
     "miko_cmd_from_commands",
     "miko_cmd_from_table4",
     "miko_imu_from_table4",
+    "original_series",
     "pose2d_from_table3",
+    "quaternion",
     "scan_series",
+    "stamp",
+    "static_transform",
 ]
 
 Array = npt.NDArray[Any]
 
 
-class ScanLog(Protocol):
+class Scans(Protocol):
     """What ``/scan`` reads of :class:`mkflight.logs.scans.ScanLog` (the scans of ``laser.raw``)."""
 
     @property
-    def t_ns(self) -> npt.NDArray[np.int64]: ...
+    def t_ns(self) -> npt.NDArray[np.int64]:
+        """(n,) the read that completed each scan reply (flight clock)."""
+
     @property
-    def stamp_t_ns(self) -> npt.NDArray[np.int64]: ...
+    def stamp_t_ns(self) -> npt.NDArray[np.int64]:
+        """(n,) when each scan was taken: the driver's stamp of its front step."""
+
     @property
-    def angle_min_rad(self) -> float: ...
+    def angle_min_rad(self) -> float:
+        """Beam 0's angle in the vehicle frame, positive to the right."""
+
     @property
-    def angle_increment_rad(self) -> float: ...
+    def angle_increment_rad(self) -> float:
+        """The angle between neighbouring beams."""
+
     @property
-    def ranges_m(self) -> npt.NDArray[np.float64]: ...
+    def ranges_m(self) -> npt.NDArray[np.float64]:
+        """(n, beams) ranges; NaN where the URG reported none."""
 
 
 FieldType = Literal["float64", "int32", "int64", "string"]
@@ -241,7 +256,7 @@ def miko_cmd_from_table4(imu: Array, t_s: Array, t0_ns: int) -> Series:
     return _series(topics.MIKO_CMD, "MikoCmd", t_s, t0_ns, cols)
 
 
-def scan_series(scans: ScanLog) -> Series:
+def scan_series(scans: Scans) -> Series:
     """``/scan``: every scan at the read that completed it, stamped when it was taken."""
     n = len(scans.t_ns)
     cols = {
@@ -373,7 +388,7 @@ def static_transform(t_ns: int) -> Series:
 
 
 def flight_series(
-    flight: FlightData, scans: ScanLog | None = None, *, tables_only: bool = False
+    flight: FlightData, scans: Scans | None = None, *, tables_only: bool = False
 ) -> list[Series]:
     """Every topic of a flight folder (module docstring); empty series left out.
 
