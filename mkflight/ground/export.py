@@ -172,12 +172,8 @@ def write_mcap(out: Path, series: Sequence[Series], *, ros2: bool, force: bool) 
             (_write_ros2 if ros2 else _write_json)(f, series)
             f.flush()
             os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)
-        if force:
-            os.replace(tmp, out)
-        else:
-            os.link(tmp, out)  # fails if out appeared meanwhile: never replaced unasked
-            tmp.unlink()
+        os.chmod(tmp, 0o666 & ~_umask())  # as an open() would have made it
+        _place(tmp, out, force=force)
         tmp = None
         return out.stat().st_size
     except FileExistsError as err:
@@ -190,6 +186,33 @@ def write_mcap(out: Path, series: Sequence[Series], *, ros2: bool, force: bool) 
         if tmp is not None:
             with contextlib.suppress(OSError):
                 tmp.unlink()
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _place(tmp: Path, out: Path, *, force: bool) -> None:
+    """Rename the whole file ``tmp`` to ``out``; without ``force``, never over a file.
+
+    Raises:
+        FileExistsError: ``out`` exists and not ``force``.
+    """
+    if force:
+        os.replace(tmp, out)
+        return
+    try:
+        os.link(tmp, out)  # atomic, and fails if out appeared meanwhile
+    except FileExistsError:
+        raise
+    except OSError:  # a file system without hard links (FAT, some network shares)
+        if os.path.lexists(out):
+            raise FileExistsError(out) from None
+        os.replace(tmp, out)
+        return
+    tmp.unlink()
 
 
 def _scans(flight: FlightData) -> Scans | None:

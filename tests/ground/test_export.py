@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 import subprocess
 import sys
@@ -514,6 +515,29 @@ def test_a_failure_while_writing_leaves_no_half_file(
         export_flight(folder, out_dir / "old.mcap")
     assert [p.name for p in out_dir.iterdir()] == ["old.mcap"]
     assert (out_dir / "old.mcap").read_bytes() == b"old"
+
+
+def test_a_file_system_without_hard_links_still_gets_the_file(
+    flight: Folder, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def no_links(src: object, dst: object) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "link", no_links)
+    folder = _tables_only(flight, tmp_path)
+    out = tmp_path / "out" / "x.mcap"
+    out.parent.mkdir()
+    r = export_flight(folder, out)
+    assert set(_read_json(out)) == {*ORIGINAL, topics.VELOCITY}
+    assert [p.name for p in out.parent.iterdir()] == ["x.mcap"]
+    assert r.size_bytes == out.stat().st_size
+    assert out.stat().st_mode & 0o777 == 0o666 & ~_umask()
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 @pytest.mark.parametrize(("ros2", "module"), [(False, "mcap.writer"), (True, "mcap_ros2.writer")])
