@@ -209,6 +209,53 @@ def test_the_schemas_are_foxgloves_and_table_v_to_vii(exported: dict[str, Any]) 
     assert list(first[topics.MIKO_CMD]) == ["pitch", "roll", "yaw", "throttle"]  # TABLE VII
 
 
+_JSON_TYPES: dict[str, tuple[type, ...]] = {
+    "number": (int, float),
+    "integer": (int,),
+    "string": (str,),
+    "null": (type(None),),
+    "object": (dict,),
+    "array": (list,),
+}
+
+
+def _conforms(value: Any, schema: dict[str, Any]) -> bool:
+    """``value`` fits ``schema`` (the JSON Schema keywords the export uses)."""
+    kinds = schema["type"] if isinstance(schema["type"], list) else [schema["type"]]
+    if not any(
+        isinstance(value, _JSON_TYPES[k]) and not (k != "null" and isinstance(value, bool))
+        for k in kinds
+    ):
+        return False
+    if isinstance(value, dict):
+        props = schema.get("properties", {})
+        return (
+            set(value) == set(props)
+            and set(schema.get("required", ())) <= set(value)
+            and all(_conforms(v, props[k]) for k, v in value.items())
+        )
+    if isinstance(value, list):
+        return all(_conforms(v, schema["items"]) for v in value)
+    return True
+
+
+def test_every_message_fits_its_channels_schema(exported: dict[str, Any]) -> None:
+    with Path(exported["summary"]["path"]).open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        schemas = {
+            c.topic: json.loads(summary.schemas[c.schema_id].data)
+            for c in summary.channels.values()
+        }
+        seen = 0
+        for _, channel, m in reader.iter_messages():
+            assert _conforms(json.loads(m.data), schemas[channel.topic]), channel.topic
+            seen += 1
+    assert seen == sum(exported["summary"]["counts"].values())
+    assert schemas[topics.SCAN]["title"] == "foxglove.LaserScan"
+
+
 def test_log_times_are_the_recorded_times(flight: Folder, exported: dict[str, Any]) -> None:
     msgs = exported["messages"]
     imu_ns, laser_ns = _table_times(flight)
@@ -495,6 +542,26 @@ def test_an_existing_file_is_kept_unless_forced(flight: Folder, tmp_path: Path) 
     assert done.returncode == 2
     assert "no such directory" in _one_error_line(done)
     assert _mkflight("export", str(folder)).returncode == 2  # -o is required
+
+
+def test_table_rows_without_a_time_are_left_out_and_counted(flight: Folder, tmp_path: Path) -> None:
+    folder = tmp_path / "cut"
+    shutil.copytree(flight.path, folder)
+    lines = (folder / "events.jsonl").read_text().splitlines(keepends=True)
+    steps = [i for i, line in enumerate(lines) if '"event":"step"' in line.replace(" ", "")]
+    assert len(steps) == len(flight.steps)
+    dropped = set(steps[-5:])  # as if the last steps' events were never written
+    (folder / "events.jsonl").write_text(
+        "".join(x for i, x in enumerate(lines) if i not in dropped)
+    )
+    out = tmp_path / "cut.mcap"
+    done = _mkflight("export", str(folder), "-o", str(out), "--json")
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["left_out"] == {table4.FILE_NAME: 5}
+    assert summary["counts"][topics.MIKO_IMU] == len(flight.table4) - 5
+    done = _mkflight("export", str(folder), "-o", str(tmp_path / "cut2.mcap"))
+    assert f"not exported: 5 rows of {table4.FILE_NAME} without a time" in done.stdout
 
 
 def test_a_failure_while_writing_leaves_no_half_file(
