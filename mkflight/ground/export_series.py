@@ -16,9 +16,10 @@ MikroKopter documentation):
 - ``/mikoCmd`` (TABLE VII: ``pitch``, ``roll``, ``yaw``, ``throttle``): one per
   ExternControl written to the FC (``mk.raw``), its ``nick``, ``roll``, ``yaw`` and
   ``gas`` counts as on the wire (MK signs, SPEC §1), at the write. A folder without
-  ``mk.raw`` (the original system's two tables alone) gets one per TABLE IV row instead:
-  ``ControlPitch``, ``ControlRoll``, ``ControlYaw``, and ``throttle`` unknown
-  (:data:`NO_THROTTLE`), since TABLE IV records no commanded gas.
+  ``mk.raw`` (``sim hover``'s, or the original system's two tables alone) gets one per
+  TABLE IV row instead: ``ControlPitch``, ``ControlRoll``, ``ControlYaw``, and the gas of
+  the row's ``step`` event; with no events, ``throttle`` is unknown (:data:`NO_THROTTLE`),
+  since TABLE IV records no commanded gas.
 - ``/scan``: every scan of ``laser.raw`` (:func:`mkflight.logs.scans.read_scans`), the
   beams of ``laser.scan_steps`` (the scan plane; the hat's beams give ``/height``), in m,
   NaN for the URG's error codes, in the vehicle frame. Its log time is the ``laser.raw``
@@ -80,6 +81,7 @@ __all__ = [
     "original_series",
     "pose2d_from_table3",
     "quaternion",
+    "row_gas",
     "scan_series",
     "stamp",
     "static_transform",
@@ -245,13 +247,18 @@ def miko_cmd_from_commands(commands: Array, t0_ns: int) -> Series:
     return _series(topics.MIKO_CMD, "MikoCmd", commands["t_s"], t0_ns, cols)
 
 
-def miko_cmd_from_table4(imu: Array, t_s: Array, t0_ns: int) -> Series:
-    """``/mikoCmd`` (TABLE VII) from TABLE IV's ``Control*``; throttle :data:`NO_THROTTLE`."""
+def miko_cmd_from_table4(
+    imu: Array, t_s: Array, t0_ns: int, gas: npt.NDArray[np.int64] | None = None
+) -> Series:
+    """``/mikoCmd`` (TABLE VII) from TABLE IV's ``Control*`` and each row's ``gas`` sent.
+
+    ``gas``: one per row (:data:`NO_THROTTLE` where unknown); None: all unknown.
+    """
     cols = {
         "pitch": imu["ControlPitch"],
         "roll": imu["ControlRoll"],
         "yaw": imu["ControlYaw"],
-        "throttle": np.full(len(imu), NO_THROTTLE, dtype=np.int64),
+        "throttle": np.full(len(imu), NO_THROTTLE, dtype=np.int64) if gas is None else gas,
     }
     return _series(topics.MIKO_CMD, "MikoCmd", t_s, t0_ns, cols)
 
@@ -367,13 +374,27 @@ def _sample_series(flight: FlightData, t0_ns: int) -> list[Series]:
     ]
 
 
+def row_gas(imu: Array, steps: Array) -> npt.NDArray[np.int64]:
+    """Each TABLE IV row's gas sent, from its step event's ``gas_counts``.
+
+    The k-th step event is the row of index k; a row without one gets :data:`NO_THROTTLE`.
+    """
+    gas = np.full(len(imu), NO_THROTTLE, dtype=np.int64)
+    k = np.asarray(imu["index"], dtype=np.int64) - 1
+    step_gas = np.asarray(steps["gas_counts"], dtype=np.float64)
+    ok = (k >= 0) & (k < len(step_gas))
+    ok[ok] &= np.isfinite(step_gas[k[ok]])
+    gas[ok] = step_gas[k[ok]].astype(np.int64)
+    return gas
+
+
 def original_series(flight: FlightData) -> list[Series]:
     """``/pose2D``, ``/mikoImu`` and ``/mikoCmd``: the original system's topics (TABLE V-VII)."""
     t0 = flight.t0_ns or 0
     cmd = (
         miko_cmd_from_commands(flight.commands, t0)
         if len(flight.commands)
-        else miko_cmd_from_table4(flight.imu, flight.imu_t_s, t0)
+        else miko_cmd_from_table4(flight.imu, flight.imu_t_s, t0, row_gas(flight.imu, flight.steps))
     )
     return [
         pose2d_from_table3(flight.laser, flight.laser_t_s, t0),

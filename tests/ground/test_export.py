@@ -37,6 +37,7 @@ from mkflight.ground.export_series import (
     miko_imu_from_table4,
     pose2d_from_table3,
     quaternion,
+    row_gas,
     scan_series,
     stamp,
 )
@@ -396,6 +397,24 @@ def test_a_folder_of_the_two_tables_alone_exports_at_nominal_times(
         assert got == (row["ControlPitch"], NO_THROTTLE)
 
 
+def test_without_mk_raw_the_commands_come_from_table_iv_and_the_steps(
+    flight: Folder, tmp_path: Path
+) -> None:
+    """A ``sim hover`` folder has no ``mk.raw``: the steps still say the gas sent."""
+    folder = _tables_only(flight, tmp_path)
+    shutil.copy(flight.path / "events.jsonl", folder / "events.jsonl")
+    out = tmp_path / "no-raw.mcap"
+    done = _mkflight("export", str(folder), "-o", str(out))
+    assert done.returncode == 0, done.stderr
+    cmd = _read_json(out)[topics.MIKO_CMD]
+    imu_ns, _ = _table_times(flight)
+    assert [m.log_time for m in cmd] == imu_ns
+    gas = {s.t_ns: s.gas_counts for s in flight.steps}
+    assert [m.value["throttle"] for m in cmd] == [gas[t] for t in imu_ns]
+    assert max(m.value["throttle"] for m in cmd) > 0
+    assert [m.value["pitch"] for m in cmd] == flight.table4["ControlPitch"].tolist()
+
+
 def test_tables_exports_only_the_original_topics_of_a_whole_flight(
     flight: Folder, tmp_path: Path
 ) -> None:
@@ -658,6 +677,19 @@ def test_tables_to_messages_keep_every_timed_row_in_time_order(
             assert series.columns[name].tolist() == [table[column][i] for i in order]
     cmd = miko_cmd_from_table4(imu, t_s, t0_ns)
     assert set(cmd.columns["throttle"].tolist()) <= {NO_THROTTLE}
+
+
+@given(st.lists(st.integers(0, 40), max_size=20, unique=True), st.integers(0, 30))
+def test_row_gas_is_the_rows_step_or_not_recorded(indexes: list[int], steps: int) -> None:
+    imu = np.zeros(len(indexes), table4.FORMAT.dtype)
+    imu["index"] = sorted(indexes)
+    step_table = np.zeros(steps, [("t_s", float), ("gas_counts", float)])
+    step_table["gas_counts"] = np.arange(steps) * 3.0 + 100
+    step_table["gas_counts"][::4] = math.nan  # a step whose gas is null
+    got = row_gas(imu, step_table).tolist()
+    for i, g in zip(imu["index"].tolist(), got, strict=True):
+        known = 1 <= i <= steps and (i - 1) % 4 != 0
+        assert g == ((i - 1) * 3 + 100 if known else NO_THROTTLE)
 
 
 @given(st.integers(0, 2**62), st.integers(0, 2**40))
