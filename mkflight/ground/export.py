@@ -16,11 +16,10 @@ Encodings:
 - default: JSON messages with JSON Schemas (:mod:`mkflight.ground.export_json`), Foxglove's
   ``foxglove.LaserScan``, ``foxglove.PoseInFrame`` and ``foxglove.FrameTransform`` for the
   scan, the poses and the frames. Written with the ``mcap`` library's writer rather than the
-  Foxglove SDK's (protobuf): the file then decodes with any MCAP reader and nothing more (no
-  protobuf runtime, here or in a lab's scripts), the writer takes each message's
-  ``log_time`` and ``publish_time`` as recorded, and the same writer serves ``--ros2``. The
-  Foxglove app draws Foxglove's schemas in JSON as it does in protobuf; the size JSON costs
-  is mostly won back by the chunks' zstd compression.
+  Foxglove SDK's (protobuf): the file then decodes with any MCAP reader and ``json`` alone
+  (no protobuf runtime, here or in a lab's scripts), and one writer library serves both
+  encodings. The Foxglove app draws Foxglove's schemas in JSON as it does in protobuf; the
+  size JSON costs is mostly won back by the chunks' zstd compression.
 - ``--ros2``: ROS 2 message definitions, CDR (:mod:`mkflight.ground.ros2_msgs`), with
   ``mcap-ros2-support``'s writer: ``ros2 bag play FILE.mcap`` plays it.
 
