@@ -24,6 +24,7 @@ from mkflight.commands import (
     mk_info,
     plot,
     replay,
+    report,
     scanmatch,
     sim_run,
     tune,
@@ -54,6 +55,7 @@ GROUPS: tuple[Callable[[Subparsers], None], ...] = (
     plot.add_parser,
     analyze.add_parser,
     tune.add_parser,
+    report.add_parser,
 )
 
 

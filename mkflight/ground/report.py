@@ -1,0 +1,421 @@
+"""The HTML flight report: one self-contained page of a flight folder (SPEC §6).
+
+:func:`build_report` turns what :func:`mkflight.logs.load_flight` read into one HTML
+document: the summary (how the flight ended, how long, the battery, the versions), a
+timeline of the phases and failsafes (:mod:`.report_timeline`), the hover precision
+beside TABLE IX (:mod:`.report_precision`), the step timing and CPU, the link counters
+and the plots (:mod:`.report_plots`, PNG inline as ``data:`` URIs). It refers to no
+other file and no network resource. What a folder lacks (no ``flight.json``: the
+original system's two tables alone; no summary: a killed flight; no ``truth.txt``: a real
+flight) is said in the section that needs it and listed at the top; nothing is
+refused that :func:`~mkflight.logs.load_flight` reads.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Final
+
+import msgspec
+import numpy as np
+
+import mkflight
+from mkflight.errors import MkflightError
+from mkflight.ground.report_html import (
+    Cell,
+    CellLike,
+    bullet_list,
+    fmt,
+    kv_table,
+    missing,
+    num,
+    page,
+    para,
+    png_figure,
+    section,
+    table,
+)
+from mkflight.ground.report_plots import PlotImages
+from mkflight.ground.report_precision import hover_precision, precision_section
+from mkflight.ground.report_timeline import timeline, timeline_svg
+from mkflight.logs.flight import FlightData
+from mkflight.logs.schema import (
+    UNSET,
+    FlightSummary,
+    HoverSummary,
+    UnknownSummary,
+)
+
+FILE_NAME: Final = "report.html"
+#: Counters whose every non-zero value is a fault worth a look (shown red).
+ALARM_COUNTERS: Final = frozenset(
+    (
+        *("crc_errors", "malformed_frames", "overflows", "stale_releases", "blind_commands"),
+        *("confirms_lost", "parser_sum_errors", "parser_malformed", "parser_overflows"),
+        *("stalls", "stream_errors", "dropped", "missed_steps", "overruns"),
+    )
+)
+PLOT_CAPTIONS: Final = {
+    "trajectory": "x-y path: the estimate (TABLE III), the truth when simulated, the set-point",
+    "position": "x, y and height against time with their set-points",
+    "velocity": "body velocity: the laser's B_Vel against the filter's B_esti_Vel (Fig 18/19)",
+    "commands": "ControlPitch/Roll/Yaw, the sticks and the gas command (TABLE IV), MK counts",
+    "battery": "battery voltage of the step events",
+}
+
+
+class ReportError(MkflightError):
+    """The report cannot be written (exit 1)."""
+
+
+def _no_summary(flight: FlightData) -> str:
+    if flight.info is None:
+        return "no flight.json: the folder holds the original system's tables only"
+    return "flight.json has no summary: the flight did not end (killed, or still running)"
+
+
+def _finite(values: Any) -> np.ndarray[Any, np.dtype[np.float64]]:
+    arr = np.asarray(values, dtype=np.float64)
+    return arr[np.isfinite(arr)]
+
+
+def _battery(flight: FlightData) -> list[tuple[str, CellLike]]:
+    """Battery voltage: the pre-flight check's, then start, end and minimum in flight."""
+    rows: list[tuple[str, CellLike]] = []
+    summary = flight.info.summary if flight.info is not None else None
+    if isinstance(summary, FlightSummary) and summary.preflight is not UNSET:
+        rows.append(
+            ("battery at the pre-flight check", num(summary.preflight.battery_v, ".2f", "V"))
+        )
+    for source, values in (("step events", flight.steps), ("DebugOut read", flight.samples)):
+        volts = _finite(values["battery_v"])
+        if len(volts):
+            rows.append(
+                (
+                    f"battery start / end / min ({source})",
+                    Cell(f"{volts[0]:.2f} / {volts[-1]:.2f} / {volts.min():.2f} V", num=True),
+                )
+            )
+            break
+    return rows or [("battery", Cell("not recorded (no step events, no mk.raw)"))]
+
+
+def _verdict(flight: FlightData) -> str:
+    """The badge: landed and released, failed, or not known."""
+    summary = flight.info.summary if flight.info is not None else None
+    if isinstance(summary, FlightSummary):
+        ok = summary.exit_code == 0
+        text = f"exit {summary.exit_code}: {summary.end_reason} (phase {summary.final_phase})"
+    elif isinstance(summary, HoverSummary):
+        ok = summary.landed and summary.released
+        text = f"sim hover: {summary.end}"
+    else:
+        return f'<span class="verdict unknown">{Cell(_no_summary(flight)).html("span")}</span>'
+    cls = "ok" if ok else "bad"
+    return f'<span class="verdict {cls}">{Cell(text).html("span")}</span>'
+
+
+def _flight_rows(s: FlightSummary) -> list[tuple[str, CellLike]]:
+    unplanned = [f for f in s.failsafes if "stop_" not in f]
+    rows: list[tuple[str, CellLike]] = [
+        ("end reason", s.end_reason),
+        ("exit code", Cell(str(s.exit_code), num=True, alarm=s.exit_code != 0)),
+        ("final phase", s.final_phase),
+        ("released (Config = 0 sent)", Cell(fmt(s.released), alarm=not s.released)),
+        ("duration (wall)", num(s.duration_s, ".1f", "s")),
+        ("flight (READY to the end)", num(s.flight_s, ".1f", "s")),
+        ("failsafes", Cell("; ".join(s.failsafes) or "none", alarm=bool(unplanned))),
+        ("estimator", f"{s.learned.filter}, hover gas {fmt(s.learned.hover_gas_counts, '.1f')}"),
+    ]
+    if s.log_error not in (UNSET, None):
+        rows.append(("log error", Cell(str(s.log_error), alarm=True)))
+    return rows
+
+
+def _hover_rows(s: HoverSummary) -> list[tuple[str, CellLike]]:
+    return [
+        ("end (sim hover)", s.end),
+        ("landed, released", f"{fmt(s.landed)}, {fmt(s.released)}"),
+        ("simulated", num(s.sim_s, ".1f", "s")),
+        ("in HOLD", num(s.hold_s, ".1f", "s")),
+        ("hardest touchdown", num(s.touchdown_mps, ".3f", "m/s")),
+        ("failsafes", "; ".join(s.failsafes) or "none"),
+        ("airframe", f"{s.airframe_kind} (seed {s.airframe_seed})"),
+    ]
+
+
+def _summary_section(flight: FlightData, lacks: list[str]) -> str:
+    info = flight.info
+    rows: list[tuple[str, CellLike]] = [("flight folder", str(flight.path))]
+    if info is not None:
+        source = getattr(info, "config_source", None)
+        rows += [
+            ("start (UTC)", info.start_utc),
+            ("mkflight version", info.mkflight_version),
+            ("FC version", info.fc_version or NOT_ANSWERED),
+            ("config source", str(source) if source else "not recorded in flight.json"),
+        ]
+    summary = info.summary if info is not None else None
+    body: list[str] = []
+    if isinstance(summary, FlightSummary):
+        rows += _flight_rows(summary)
+    elif isinstance(summary, HoverSummary):
+        rows += _hover_rows(summary)
+    elif isinstance(summary, UnknownSummary):
+        rows += [(str(k), str(v)) for k, v in summary.fields.items()]
+        body.append(missing(f"summary of another version, shown as read: {summary.problem}"))
+    else:
+        body.append(missing(_no_summary(flight)))
+        lacks.append(_no_summary(flight))
+    steps = len(flight.steps)
+    rows += _battery(flight)
+    rows.append(("steps, scans (events)", f"{steps}, {len(flight.scans)}"))
+    return section("summary", "Summary", [kv_table(rows), *body])
+
+
+NOT_ANSWERED: Final = "not known (the FC did not answer)"
+
+
+def _timeline_section(flight: FlightData, lacks: list[str]) -> str:
+    if not flight.events:
+        text = "no timeline: the folder has no events.jsonl (phases and failsafes are in it)"
+        lacks.append(text)
+        return section("timeline", "Phases and failsafes", [missing(text)])
+    tl = timeline(flight.events, flight.t0_ns)
+    rows: list[list[CellLike]] = [
+        [num(m.number), num(m.t_s, ".2f"), Cell(m.kind), Cell(m.text, alarm=m.alarm)]
+        for m in tl.marks
+    ]
+    body = [
+        timeline_svg(tl),
+        para(
+            f"The band: the phases. Below it the height estimate; dashed lines: the events "
+            f"numbered as in the table (red: failsafes not asked for, crashes, the laser's "
+            f"troubles). t = 0 s is {tl.zero}."
+        ),
+        table(("#", "t s", "event", "what"), rows),
+    ]
+    return section("timeline", "Phases and failsafes", body)
+
+
+def _timing_rows(s: FlightSummary) -> list[tuple[str, CellLike]]:
+    t = s.timing
+    return [
+        ("steps", num(t.steps)),
+        ("command latency median", num(t.latency_median_ms, ".2f", "ms")),
+        ("command latency p99", num(t.latency_p99_ms, ".2f", "ms")),
+        ("command latency max", num(t.latency_max_ms, ".2f", "ms")),
+        ("added jitter p99 (latency step to step)", num(t.added_jitter_p99_ms, ".2f", "ms")),
+        ("DebugOut interval median", num(t.period_median_ms, ".1f", "ms")),
+        ("DebugOut jitter p99", num(t.jitter_p99_ms, ".1f", "ms")),
+        ("missed steps", num(t.missed_steps, alarm=t.missed_steps > 0)),
+        (
+            "step busy median / p99",
+            Cell(f"{fmt(t.busy_median_ms, '.2f')} / {fmt(t.busy_p99_ms, '.2f')} ms", num=True),
+        ),
+        ("restarted periods, overruns", f"{t.restarted_periods}, {t.overruns}"),
+        ("delayed commands", num(t.delayed_commands)),
+    ]
+
+
+def _cpu_rows(s: FlightSummary) -> list[tuple[str, CellLike]]:
+    rows: list[tuple[str, CellLike]] = [
+        ("daemon, whole flight", num(s.cpu_percent_of_one_core, ".2f", "% of one core")),
+    ]
+    if s.cpu_percent_in_hold is not None:
+        h = s.cpu_percent_in_hold
+        rows += [
+            (f"daemon in HOLD ({h.hold_s:.1f} s)", num(h.daemon, ".2f", "% of one core")),
+            ("scan matcher in HOLD", num(h.matcher, ".2f", "% of one core")),
+        ]
+    rows += [
+        (
+            "scan matcher",
+            f"{s.matcher.scans} scans, {fmt(s.matcher.cpu_ms_per_scan, '.3f')} ms a scan",
+        ),
+        (
+            "garbage collector",
+            f"{s.gc.collections} runs ({s.gc.full_collections} full), "
+            f"max pause {s.gc.max_pause_ms:.3f} ms",
+        ),
+    ]
+    return rows
+
+
+def _step_timing(flight: FlightData) -> list[tuple[str, CellLike]]:
+    """What the step events say of the timing, for a flight without a summary."""
+    lat = _finite(flight.steps["latency_ms"])
+    period = np.diff(flight.steps["t_s"]) * 1000.0
+    rows: list[tuple[str, CellLike]] = [("steps", num(len(flight.steps)))]
+    if len(lat):
+        rows += [
+            ("command latency median", num(float(np.median(lat)), ".2f", "ms")),
+            ("command latency p99", num(float(np.percentile(lat, 99)), ".2f", "ms")),
+        ]
+    if len(period):
+        rows.append(("step interval median", num(float(np.median(period)), ".1f", "ms")))
+    return rows
+
+
+def _timing_section(flight: FlightData, lacks: list[str]) -> str:
+    summary = flight.info.summary if flight.info is not None else None
+    if isinstance(summary, FlightSummary):
+        body = [
+            para("Latency: DebugOut read to ExternControl written (SPEC §9)."),
+            '<div class="grid">',
+            kv_table(_timing_rows(summary), "Steps"),
+            kv_table(_cpu_rows(summary), "CPU"),
+            "</div>",
+        ]
+    elif isinstance(summary, HoverSummary):
+        body = [
+            kv_table(
+                [
+                    (
+                        "CPU a step (lock-step simulation)",
+                        num(summary.cpu_us_per_step, ".1f", "µs"),
+                    ),
+                    ("simulated s per wall s", num(summary.realtime_factor, ".1f")),
+                ]
+            )
+        ]
+    elif len(flight.steps):
+        body = [
+            missing(f"{_no_summary(flight)}: timing from the step events instead"),
+            kv_table(_step_timing(flight)),
+        ]
+    else:
+        text = "no timing: no summary and no step events"
+        lacks.append(text)
+        body = [missing(text)]
+    return section("timing", "Timing and CPU", body)
+
+
+def _struct_rows(value: msgspec.Struct) -> list[tuple[str, CellLike]]:
+    """A counters Struct's fields by name; a fault counter above zero, or an error, red."""
+    rows: list[tuple[str, CellLike]] = []
+    for key, v in msgspec.structs.asdict(value).items():
+        if isinstance(v, str) or v is None:  # a recorder's error, or none
+            rows.append((key, Cell(v or "none", alarm=v is not None)))
+        else:
+            rows.append(
+                (
+                    key,
+                    num(
+                        v,
+                        ".3f" if isinstance(v, float) else "",
+                        alarm=bool(v) and key in ALARM_COUNTERS,
+                    ),
+                )
+            )
+    return rows
+
+
+def _recorded_rows(flight: FlightData) -> list[tuple[str, CellLike]]:
+    """What the folder's files hold, counted by the reader (there for any folder)."""
+    return [
+        ("ExternControl written (mk.raw)", num(len(flight.commands))),
+        ("DebugOut read (mk.raw)", num(len(flight.samples))),
+        ("TABLE IV rows (imu_50ms.log)", num(len(flight.imu))),
+        ("TABLE III rows (laser_100ms.log)", num(len(flight.laser))),
+        ("events (events.jsonl)", num(len(flight.events))),
+    ]
+
+
+def _counters_section(flight: FlightData, lacks: list[str]) -> str:
+    summary = flight.info.summary if flight.info is not None else None
+    tables = [kv_table(_recorded_rows(flight), "Recorded")]
+    if isinstance(summary, FlightSummary):
+        for title, value in (
+            ("MK link", summary.mk_link),
+            ("Laser link", summary.laser_link),
+            ("mk.raw recorder", summary.mk_raw),
+            ("laser.raw recorder", summary.laser_raw),
+        ):
+            if isinstance(value, msgspec.Struct):
+                tables.append(kv_table(_struct_rows(value), title))
+    body = [
+        para(
+            "Counters of the links and raw recorders at the end (flight.json); red: a "
+            "non-zero fault counter."
+        ),
+        '<div class="grid">',
+        *tables,
+        "</div>",
+    ]
+    if not isinstance(summary, FlightSummary):
+        text = f"no link counters: {_no_summary(flight)}"
+        body.append(missing(text))
+    return section("counters", "Link counters", body)
+
+
+def _plots_section(plots: PlotImages, lacks: list[str]) -> str:
+    if not plots.images:
+        lacks.append(plots.missing)
+        return section("plots", "Plots", [missing(plots.missing)])
+    figures = [png_figure(name, png, PLOT_CAPTIONS.get(name, name)) for name, png in plots.images]
+    return section("plots", "Plots", figures)
+
+
+def _header(flight: FlightData) -> str:
+    start = flight.info.start_utc if flight.info is not None else "start time not recorded"
+    return (
+        f"<header><h1>{Cell(f'Flight report: {flight.path.name}').html('span')}</h1>"
+        f"{para(f'{flight.path} · {start}', 'sub')}{_verdict(flight)}</header>"
+    )
+
+
+def _notes(lacks: Sequence[str], warnings: Sequence[str]) -> str:
+    if not lacks and not warnings:
+        return ""
+    out = ['<div class="notes">']
+    if lacks:
+        out += [para("What this folder lacks:"), bullet_list(lacks)]
+    if warnings:
+        out += [para("The reader's warnings:"), bullet_list(warnings)]
+    return "".join(out) + "</div>"
+
+
+def build_report(flight: FlightData, plots: PlotImages) -> str:
+    """The report of ``flight`` as one HTML document (module docstring)."""
+    lacks: list[str] = []
+    hp = hover_precision(flight)
+    sections = [
+        _summary_section(flight, lacks),
+        _timeline_section(flight, lacks),
+        precision_section(flight, hp),
+        _timing_section(flight, lacks),
+        _counters_section(flight, lacks),
+        _plots_section(plots, lacks),
+    ]
+    lacks += [m for m in (hp.estimate_missing, hp.truth_missing) if m]
+    footer = para(
+        f"Made by mkflight {mkflight.__version__} from the flight folder alone; "
+        "§, TABLE and Fig numbers are those of the 2011 QUT CyPhy MikroKopter documentation."
+    )
+    return page(
+        f"Flight report: {flight.path.name}",
+        [_header(flight), _notes(lacks, flight.warnings), *sections, f"<footer>{footer}</footer>"],
+    )
+
+
+def write_report(path: Path, html: str) -> Path:
+    """Write ``html`` to ``path`` through a new temporary file renamed over it.
+
+    A reader never sees half a page, and a symlink planted at ``path`` is replaced, not
+    written through.
+
+    Raises:
+        ReportError: the folder cannot be written.
+    """
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.unlink(missing_ok=True)
+        with tmp.open("x", encoding="utf-8") as f:
+            f.write(html)
+        tmp.replace(path)
+    except OSError as err:
+        msg = f"{path}: cannot write the report: {err.strerror or err}"
+        raise ReportError(msg) from err
+    return path

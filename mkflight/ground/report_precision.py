@@ -1,0 +1,133 @@
+"""The report's hover precision beside the original paper's TABLE IX (§O-P).
+
+The figures are :mod:`mkflight.analysis.precision`'s, as ``mkflight analyze precision``
+prints them: the error is position minus set-point over the HOLD ``step`` events from
+3 s after HOLD began, against the flight's estimate and, when the folder has the
+simulator's ``truth.txt``, against the truth. TABLE IX's rows are given as the paper
+gives them: RMS for MIT and ETHZ, std for GRASP and QUT.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mkflight.analysis.precision import (
+    SEED_TABLE_IX,
+    SETTLE_S,
+    AnalysisInputError,
+    HoldSamples,
+    Precision,
+    hold_samples,
+    precision,
+    with_truth,
+)
+from mkflight.ground.report_html import Cell, CellLike, missing, num, para, section, table
+from mkflight.logs.flight import FlightData
+from mkflight.logs.schema import FlightSummary
+
+#: This flight's figures are shown to 0.1 mm; TABLE IX's as the paper prints them.
+PRECISION_SPEC = ".4f"
+STATS = ("std", "rms", "mean", "max")
+_STAT_NAME = {"std": "std", "rms": "RMS", "mean": "mean", "max": "max |err|"}
+
+
+@dataclass(frozen=True, slots=True)
+class HoverPrecision:
+    """The flight's precision against its estimate and against the truth; why one is missing.
+
+    ``estimate`` or ``truth`` is None when it cannot be measured; ``*_missing`` then says why.
+    """
+
+    estimate: Precision | None
+    truth: Precision | None
+    estimate_missing: str
+    truth_missing: str
+
+
+def _truth_samples(flight: FlightData, samples: HoldSamples) -> HoldSamples:
+    """The HOLD samples with the truth's position (nearest row; times on ``t_s``'s axis)."""
+    assert flight.truth is not None
+    shifted = HoldSamples(
+        samples.t_ns - (flight.t0_ns or 0), samples.position_m, samples.setpoint_m
+    )
+    rows = np.column_stack([flight.truth[k] for k in ("t_s", "x_m", "y_m", "height_m")]).astype(
+        np.float64
+    )
+    return with_truth(shifted, rows.reshape(-1, 4))
+
+
+def hover_precision(flight: FlightData) -> HoverPrecision:
+    """Measure the HOLD precision of ``flight`` (module docstring)."""
+    samples = hold_samples(flight.events)
+    estimate: Precision | None = None
+    truth: Precision | None = None
+    estimate_missing = truth_missing = ""
+    try:
+        estimate = precision(samples, "estimate")
+    except AnalysisInputError as err:
+        estimate_missing = (
+            f"no hover precision: {err}"
+            if flight.events
+            else "no hover precision: the "
+            "folder has no events.jsonl (the HOLD steps and set-points are in it)"
+        )
+    if flight.truth is None:
+        truth_missing = "no truth.txt in the folder (a real flight): precision of the estimate only"
+    elif estimate is not None:
+        try:
+            truth = precision(_truth_samples(flight, samples), "truth")
+        except AnalysisInputError as err:
+            truth_missing = f"truth.txt has no row near the HOLD steps: {err}"
+    return HoverPrecision(estimate, truth, estimate_missing, truth_missing)
+
+
+def _rows(label: str, p: Precision) -> list[list[CellLike]]:
+    rows: list[list[CellLike]] = []
+    for stat in STATS:
+        values = [getattr(a, f"{stat}_m") for a in (p.x, p.y, p.z)]
+        rows.append(
+            [
+                Cell(label),
+                Cell(_STAT_NAME[stat]),
+                *(num(v, PRECISION_SPEC) for v in values),
+                num(p.samples),
+            ]
+        )
+    return rows
+
+
+def precision_section(flight: FlightData, hp: HoverPrecision) -> str:
+    """The section: this flight's rows (truth, estimate), then TABLE IX's hovering rows."""
+    rows: list[list[CellLike]] = []
+    classes: list[str] = []
+    for label, p in (("this flight, truth", hp.truth), ("this flight, estimate", hp.estimate)):
+        if p is not None:
+            rows += _rows(label, p)
+            classes += ["mine"] * len(STATS)
+    for r in SEED_TABLE_IX:
+        rows.append(
+            [Cell(r.name), Cell(r.kind), *(num(v, "g") for v in (r.x_m, r.y_m, r.z_m)), Cell("")]
+        )
+        classes.append("")
+    body = [
+        para(
+            f"Error = position - set-point over HOLD, from {SETTLE_S:g} s after HOLD began "
+            "(x, y in the world frame, z = height), m. The paper's TABLE IX gives RMS or std "
+            "per system; compare like with like."
+        ),
+        table(("", "statistic", "x m", "y m", "z m", "samples"), rows, row_classes=classes),
+    ]
+    body += [missing(m) for m in (hp.estimate_missing, hp.truth_missing) if m]
+    summary = flight.info.summary if flight.info is not None else None
+    if isinstance(summary, FlightSummary) and summary.precision_estimate is not None:
+        pe = summary.precision_estimate
+        body.append(
+            para(
+                f"The daemon's own view at the end (flight.json, std of the estimate about "
+                f"the set-point over {pe.samples} HOLD steps): x {pe.std_x_m:.4f} m, "
+                f"y {pe.std_y_m:.4f} m, z {pe.std_z_m:.4f} m."
+            )
+        )
+    return section("precision", "Hover precision (§O-P, TABLE IX)", body)
