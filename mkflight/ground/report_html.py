@@ -41,6 +41,7 @@ tr.alarm td, td.alarm { background: #fde0e0; }
          margin: 0.8em 0; }
 .notes li { margin: 0.1em 0; }
 .missing { color: #8a5a00; font-style: italic; }
+svg.bars { width: 100%; max-width: 900px; height: auto; }
 svg.timeline { width: 100%; height: auto; border: 1px solid #e0e0e0; background: #fcfcfc; }
 figure { margin: 1em 0; }
 figure img { max-width: 100%; border: 1px solid #e0e0e0; }

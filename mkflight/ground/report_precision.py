@@ -10,6 +10,7 @@ gives them: RMS for MIT and ETHZ, std for GRASP and QUT.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from html import escape
 
 import numpy as np
 
@@ -24,6 +25,7 @@ from mkflight.analysis.precision import (
     with_truth,
 )
 from mkflight.ground.report_html import Cell, CellLike, missing, num, para, section, table
+from mkflight.ground.report_timeline import nice_ticks
 from mkflight.logs.flight import FlightData
 from mkflight.logs.schema import FlightSummary
 
@@ -98,6 +100,67 @@ def _rows(label: str, p: Precision) -> list[list[CellLike]]:
     return rows
 
 
+_AXIS_COLOURS = (("x", "#1f77b4"), ("y", "#ff7f0e"), ("z", "#2ca02c"))
+_BAR_H = 8.0
+_LABEL_W = 250.0
+_CHART_W = 900.0  # as wide as the CSS shows it: one unit a pixel
+
+
+def _bar_rows(hp: HoverPrecision) -> list[tuple[str, tuple[float, float, float], bool]]:
+    """Each bar group: its label, the x, y, z values (m), and whether it is this flight's."""
+    rows: list[tuple[str, tuple[float, float, float], bool]] = []
+    for label, p in (("this flight, truth", hp.truth), ("this flight, estimate", hp.estimate)):
+        if p is not None:
+            rows.append((f"{label} (std)", (p.x.std_m, p.y.std_m, p.z.std_m), True))
+    rows += [(f"{r.name} ({r.kind})", (r.x_m, r.y_m, r.z_m), False) for r in SEED_TABLE_IX]
+    return rows
+
+
+def precision_svg(hp: HoverPrecision) -> str:
+    """This flight's std per axis as bars beside TABLE IX's, on one scale in m."""
+    rows = _bar_rows(hp)
+    top_m = max(max(v) for _, v, _ in rows) * 1.05
+    group_h = 3 * _BAR_H + 8.0
+    height = 30.0 + group_h * len(rows) + 24.0
+    scale = (_CHART_W - _LABEL_W - 20.0) / top_m
+    parts = [
+        f'<svg viewBox="0 0 {_CHART_W:.0f} {height:.0f}" class="bars" role="img" '
+        'aria-label="hover precision beside TABLE IX" font-family="sans-serif" font-size="13">'
+    ]
+    for i, (axis, colour) in enumerate(_AXIS_COLOURS):
+        x = _LABEL_W + 60.0 * i
+        parts.append(
+            f'<rect x="{x:.0f}" y="6" width="10" height="10" fill="{colour}"/>'
+            f'<text x="{x + 14:.0f}" y="15">{axis}</text>'
+        )
+    axis_y = 30.0 + group_h * len(rows)
+    for tick_m in nice_ticks(0.0, top_m):
+        x = _LABEL_W + tick_m * scale
+        parts.append(
+            f'<line x1="{x:.1f}" y1="26" x2="{x:.1f}" y2="{axis_y:.1f}" stroke="#dddddd"/>'
+            f'<text x="{x:.1f}" y="{axis_y + 16:.1f}" text-anchor="middle">'
+            f"{tick_m:g}</text>"
+        )
+    for g, (label, values, mine) in enumerate(rows):
+        y0 = 30.0 + g * group_h
+        weight = ' font-weight="bold"' if mine else ""
+        parts.append(
+            f'<text x="{_LABEL_W - 8}" y="{y0 + 1.5 * _BAR_H + 4:.1f}" text-anchor="end"'
+            f"{weight}>{escape(label)}</text>"
+        )
+        for k, ((axis, colour), v) in enumerate(zip(_AXIS_COLOURS, values, strict=True)):
+            y = y0 + k * _BAR_H
+            parts.append(
+                f'<rect x="{_LABEL_W}" y="{y:.1f}" width="{max(v * scale, 0.5):.1f}" '
+                f'height="{_BAR_H - 1}" fill="{colour}"><title>'
+                f"{escape(f'{label} {axis}: {v:g} m')}</title></rect>"
+            )
+    parts.append(
+        f'<text x="{_LABEL_W - 18}" y="{axis_y + 16:.1f}" text-anchor="end">m</text></svg>'
+    )
+    return "".join(parts)
+
+
 def precision_section(flight: FlightData, hp: HoverPrecision) -> str:
     """The section: this flight's rows (truth, estimate), then TABLE IX's hovering rows."""
     rows: list[list[CellLike]] = []
@@ -118,6 +181,7 @@ def precision_section(flight: FlightData, hp: HoverPrecision) -> str:
             "per system; compare like with like."
         ),
         table(("", "statistic", "x m", "y m", "z m", "samples"), rows, row_classes=classes),
+        precision_svg(hp),
     ]
     body += [missing(m) for m in (hp.estimate_missing, hp.truth_missing) if m]
     summary = flight.info.summary if flight.info is not None else None

@@ -62,7 +62,7 @@ _BAND_Y: Final = 26.0
 _BAND_H: Final = 28.0
 _PLOT_Y: Final = 66.0
 _PLOT_H: Final = 90.0
-_H: Final = _PLOT_Y + _PLOT_H + 34.0
+_H: Final = _PLOT_Y + _PLOT_H + 46.0
 _MIN_GAP: Final = 14.0  # marks closer than this share one line and label
 
 
@@ -195,16 +195,16 @@ def _x(t_s: float, start_s: float, end_s: float) -> float:
     return _LEFT + (t_s - start_s) / (end_s - start_s) * (_W - _LEFT - _RIGHT)
 
 
-def _ticks(start_s: float, end_s: float) -> list[float]:
-    """Round time ticks, about eight across."""
-    raw = (end_s - start_s) / 8.0
+def nice_ticks(start: float, end: float, count: float = 8.0) -> list[float]:
+    """Round ticks (1, 2 or 5 times a power of ten apart), about ``count`` across."""
+    raw = (end - start) / count
     step = 10 ** math.floor(math.log10(raw))
     for k in (1.0, 2.0, 5.0, 10.0):
         if raw <= k * step:
             step *= k
             break
-    first = math.ceil(start_s / step) * step
-    return [first + i * step for i in range(int((end_s - first) / step) + 1)]
+    first = math.ceil(start / step) * step
+    return [first + i * step for i in range(int((end - first) / step + 1e-9) + 1)]
 
 
 def _band(tl: Timeline, start_s: float) -> list[str]:
@@ -292,6 +292,25 @@ def _marks(tl: Timeline, start_s: float) -> list[str]:
     return out
 
 
+def _legend(tl: Timeline) -> list[str]:
+    """The colour of each phase the flight went through, in order, under the axis."""
+    out: list[str] = []
+    x = _LEFT
+    seen: list[str] = []
+    for s in tl.spans:
+        if s.phase not in seen:
+            seen.append(s.phase)
+    for phase in seen:
+        colour = PHASE_COLOURS.get(phase, OTHER_PHASE_COLOUR)
+        out.append(
+            f'<rect x="{x:.0f}" y="{_H - 14}" width="12" height="10" fill="{colour}" '
+            f'stroke="#999999"/><text x="{x + 16:.0f}" y="{_H - 5}" font-size="11">'
+            f"{escape(phase)}</text>"
+        )
+        x += 30.0 + 7.5 * len(phase)
+    return out
+
+
 def timeline_svg(tl: Timeline) -> str:
     """The timeline as an inline ``<svg>``: phase band, height, numbered marks, time axis."""
     start_s = min([0.0, *(s.start_s for s in tl.spans), *(m.t_s for m in tl.marks)])
@@ -302,9 +321,10 @@ def timeline_svg(tl: Timeline) -> str:
         *_band(tl, start_s),
         *_height(tl, start_s),
         *_marks(tl, start_s),
+        *_legend(tl),
     ]
     axis_y = _PLOT_Y + _PLOT_H
-    for t in _ticks(start_s, tl.end_s):
+    for t in nice_ticks(start_s, tl.end_s):
         x = _x(t, start_s, tl.end_s)
         parts.append(
             f'<line x1="{x:.1f}" y1="{axis_y}" x2="{x:.1f}" y2="{axis_y + 5}" stroke="#333333"/>'
@@ -312,7 +332,7 @@ def timeline_svg(tl: Timeline) -> str:
             f"{t:g}</text>"
         )
     parts.append(
-        f'<text x="{_W - _RIGHT}" y="{_H - 2}" text-anchor="end" font-size="11">'
+        f'<text x="{_W - _RIGHT}" y="{_H - 5}" text-anchor="end" font-size="11">'
         f"{escape(f't (s) from {tl.zero}')}</text></svg>"
     )
     return "".join(parts)
