@@ -15,10 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Final
-
-import msgspec
-import numpy as np
+from typing import Final
 
 import mkflight
 from mkflight.errors import MkflightError
@@ -39,6 +36,7 @@ from mkflight.ground.report_html import (
 from mkflight.ground.report_plots import PlotImages
 from mkflight.ground.report_precision import hover_precision, precision_section
 from mkflight.ground.report_timeline import timeline, timeline_svg
+from mkflight.ground.report_timing import counters_section, finite, no_summary, timing_section
 from mkflight.logs.flight import FlightData
 from mkflight.logs.schema import (
     UNSET,
@@ -48,14 +46,7 @@ from mkflight.logs.schema import (
 )
 
 FILE_NAME: Final = "report.html"
-#: Counters whose every non-zero value is a fault worth a look (shown red).
-ALARM_COUNTERS: Final = frozenset(
-    (
-        *("crc_errors", "malformed_frames", "overflows", "stale_releases", "blind_commands"),
-        *("confirms_lost", "parser_sum_errors", "parser_malformed", "parser_overflows"),
-        *("stalls", "stream_errors", "dropped", "missed_steps", "overruns"),
-    )
-)
+NOT_ANSWERED: Final = "not known (the FC did not answer)"
 PLOT_CAPTIONS: Final = {
     "trajectory": "x-y path: the estimate (TABLE III), the truth when simulated, the set-point",
     "position": "x, y and height against time with their set-points",
@@ -69,17 +60,6 @@ class ReportError(MkflightError):
     """The report cannot be written (exit 1)."""
 
 
-def _no_summary(flight: FlightData) -> str:
-    if flight.info is None:
-        return "no flight.json: the folder holds the original system's tables only"
-    return "flight.json has no summary: the flight did not end (killed, or still running)"
-
-
-def _finite(values: Any) -> np.ndarray[Any, np.dtype[np.float64]]:
-    arr = np.asarray(values, dtype=np.float64)
-    return arr[np.isfinite(arr)]
-
-
 def _battery(flight: FlightData) -> list[tuple[str, CellLike]]:
     """Battery voltage: the pre-flight check's, then start, end and minimum in flight."""
     rows: list[tuple[str, CellLike]] = []
@@ -89,7 +69,7 @@ def _battery(flight: FlightData) -> list[tuple[str, CellLike]]:
             ("battery at the pre-flight check", num(summary.preflight.battery_v, ".2f", "V"))
         )
     for source, values in (("step events", flight.steps), ("DebugOut read", flight.samples)):
-        volts = _finite(values["battery_v"])
+        volts = finite(values["battery_v"])
         if len(volts):
             rows.append(
                 (
@@ -111,7 +91,7 @@ def _verdict(flight: FlightData) -> str:
         ok = summary.landed and summary.released
         text = f"sim hover: {summary.end}"
     else:
-        return f'<span class="verdict unknown">{Cell(_no_summary(flight)).html("span")}</span>'
+        return f'<span class="verdict unknown">{Cell(no_summary(flight)).html("span")}</span>'
     cls = "ok" if ok else "bad"
     return f'<span class="verdict {cls}">{Cell(text).html("span")}</span>'
 
@@ -146,9 +126,11 @@ def _hover_rows(s: HoverSummary) -> list[tuple[str, CellLike]]:
 
 
 def _summary_section(flight: FlightData, lacks: list[str]) -> str:
+    """How it ended, how long, the versions, the battery; ``lacks`` gets a missing summary."""
     info = flight.info
     rows: list[tuple[str, CellLike]] = [("flight folder", str(flight.path))]
     if info is not None:
+        # Where the config came from, for a flight.json that records it (None: it does not).
         source = getattr(info, "config_source", None)
         rows += [
             ("start (UTC)", info.start_utc),
@@ -166,18 +148,15 @@ def _summary_section(flight: FlightData, lacks: list[str]) -> str:
         rows += [(str(k), str(v)) for k, v in summary.fields.items()]
         body.append(missing(f"summary of another version, shown as read: {summary.problem}"))
     else:
-        body.append(missing(_no_summary(flight)))
-        lacks.append(_no_summary(flight))
-    steps = len(flight.steps)
+        body.append(missing(no_summary(flight)))
+        lacks.append(no_summary(flight))
     rows += _battery(flight)
-    rows.append(("steps, scans (events)", f"{steps}, {len(flight.scans)}"))
+    rows.append(("steps, scans (events)", f"{len(flight.steps)}, {len(flight.scans)}"))
     return section("summary", "Summary", [kv_table(rows), *body])
 
 
-NOT_ANSWERED: Final = "not known (the FC did not answer)"
-
-
 def _timeline_section(flight: FlightData, lacks: list[str]) -> str:
+    """The SVG timeline and its table of events; ``lacks`` gets a missing events log."""
     if not flight.events:
         text = "no timeline: the folder has no events.jsonl (phases and failsafes are in it)"
         lacks.append(text)
@@ -197,157 +176,6 @@ def _timeline_section(flight: FlightData, lacks: list[str]) -> str:
         table(("#", "t s", "event", "what"), rows),
     ]
     return section("timeline", "Phases and failsafes", body)
-
-
-def _timing_rows(s: FlightSummary) -> list[tuple[str, CellLike]]:
-    t = s.timing
-    return [
-        ("steps", num(t.steps)),
-        ("command latency median", num(t.latency_median_ms, ".2f", "ms")),
-        ("command latency p99", num(t.latency_p99_ms, ".2f", "ms")),
-        ("command latency max", num(t.latency_max_ms, ".2f", "ms")),
-        ("added jitter p99 (latency step to step)", num(t.added_jitter_p99_ms, ".2f", "ms")),
-        ("DebugOut interval median", num(t.period_median_ms, ".1f", "ms")),
-        ("DebugOut jitter p99", num(t.jitter_p99_ms, ".1f", "ms")),
-        ("missed steps", num(t.missed_steps, alarm=t.missed_steps > 0)),
-        (
-            "step busy median / p99",
-            Cell(f"{fmt(t.busy_median_ms, '.2f')} / {fmt(t.busy_p99_ms, '.2f')} ms", num=True),
-        ),
-        ("restarted periods, overruns", f"{t.restarted_periods}, {t.overruns}"),
-        ("delayed commands", num(t.delayed_commands)),
-    ]
-
-
-def _cpu_rows(s: FlightSummary) -> list[tuple[str, CellLike]]:
-    rows: list[tuple[str, CellLike]] = [
-        ("daemon, whole flight", num(s.cpu_percent_of_one_core, ".2f", "% of one core")),
-    ]
-    if s.cpu_percent_in_hold is not None:
-        h = s.cpu_percent_in_hold
-        rows += [
-            (f"daemon in HOLD ({h.hold_s:.1f} s)", num(h.daemon, ".2f", "% of one core")),
-            ("scan matcher in HOLD", num(h.matcher, ".2f", "% of one core")),
-        ]
-    rows += [
-        (
-            "scan matcher",
-            f"{s.matcher.scans} scans, {fmt(s.matcher.cpu_ms_per_scan, '.3f')} ms a scan",
-        ),
-        (
-            "garbage collector",
-            f"{s.gc.collections} runs ({s.gc.full_collections} full), "
-            f"max pause {s.gc.max_pause_ms:.3f} ms",
-        ),
-    ]
-    return rows
-
-
-def _step_timing(flight: FlightData) -> list[tuple[str, CellLike]]:
-    """What the step events say of the timing, for a flight without a summary."""
-    lat = _finite(flight.steps["latency_ms"])
-    period = np.diff(flight.steps["t_s"]) * 1000.0
-    rows: list[tuple[str, CellLike]] = [("steps", num(len(flight.steps)))]
-    if len(lat):
-        rows += [
-            ("command latency median", num(float(np.median(lat)), ".2f", "ms")),
-            ("command latency p99", num(float(np.percentile(lat, 99)), ".2f", "ms")),
-        ]
-    if len(period):
-        rows.append(("step interval median", num(float(np.median(period)), ".1f", "ms")))
-    return rows
-
-
-def _timing_section(flight: FlightData, lacks: list[str]) -> str:
-    summary = flight.info.summary if flight.info is not None else None
-    if isinstance(summary, FlightSummary):
-        body = [
-            para("Latency: DebugOut read to ExternControl written (SPEC §9)."),
-            '<div class="grid">',
-            kv_table(_timing_rows(summary), "Steps"),
-            kv_table(_cpu_rows(summary), "CPU"),
-            "</div>",
-        ]
-    elif isinstance(summary, HoverSummary):
-        body = [
-            kv_table(
-                [
-                    (
-                        "CPU a step (lock-step simulation)",
-                        num(summary.cpu_us_per_step, ".1f", "µs"),
-                    ),
-                    ("simulated s per wall s", num(summary.realtime_factor, ".1f")),
-                ]
-            )
-        ]
-    elif len(flight.steps):
-        body = [
-            missing(f"{_no_summary(flight)}: timing from the step events instead"),
-            kv_table(_step_timing(flight)),
-        ]
-    else:
-        text = "no timing: no summary and no step events"
-        lacks.append(text)
-        body = [missing(text)]
-    return section("timing", "Timing and CPU", body)
-
-
-def _struct_rows(value: msgspec.Struct) -> list[tuple[str, CellLike]]:
-    """A counters Struct's fields by name; a fault counter above zero, or an error, red."""
-    rows: list[tuple[str, CellLike]] = []
-    for key, v in msgspec.structs.asdict(value).items():
-        if isinstance(v, str) or v is None:  # a recorder's error, or none
-            rows.append((key, Cell(v or "none", alarm=v is not None)))
-        else:
-            rows.append(
-                (
-                    key,
-                    num(
-                        v,
-                        ".3f" if isinstance(v, float) else "",
-                        alarm=bool(v) and key in ALARM_COUNTERS,
-                    ),
-                )
-            )
-    return rows
-
-
-def _recorded_rows(flight: FlightData) -> list[tuple[str, CellLike]]:
-    """What the folder's files hold, counted by the reader (there for any folder)."""
-    return [
-        ("ExternControl written (mk.raw)", num(len(flight.commands))),
-        ("DebugOut read (mk.raw)", num(len(flight.samples))),
-        ("TABLE IV rows (imu_50ms.log)", num(len(flight.imu))),
-        ("TABLE III rows (laser_100ms.log)", num(len(flight.laser))),
-        ("events (events.jsonl)", num(len(flight.events))),
-    ]
-
-
-def _counters_section(flight: FlightData, lacks: list[str]) -> str:
-    summary = flight.info.summary if flight.info is not None else None
-    tables = [kv_table(_recorded_rows(flight), "Recorded")]
-    if isinstance(summary, FlightSummary):
-        for title, value in (
-            ("MK link", summary.mk_link),
-            ("Laser link", summary.laser_link),
-            ("mk.raw recorder", summary.mk_raw),
-            ("laser.raw recorder", summary.laser_raw),
-        ):
-            if isinstance(value, msgspec.Struct):
-                tables.append(kv_table(_struct_rows(value), title))
-    body = [
-        para(
-            "Counters of the links and raw recorders at the end (flight.json); red: a "
-            "non-zero fault counter."
-        ),
-        '<div class="grid">',
-        *tables,
-        "</div>",
-    ]
-    if not isinstance(summary, FlightSummary):
-        text = f"no link counters: {_no_summary(flight)}"
-        body.append(missing(text))
-    return section("counters", "Link counters", body)
 
 
 def _plots_section(plots: PlotImages, lacks: list[str]) -> str:
@@ -385,8 +213,8 @@ def build_report(flight: FlightData, plots: PlotImages) -> str:
         _summary_section(flight, lacks),
         _timeline_section(flight, lacks),
         precision_section(flight, hp),
-        _timing_section(flight, lacks),
-        _counters_section(flight, lacks),
+        timing_section(flight, lacks),
+        counters_section(flight),
         _plots_section(plots, lacks),
     ]
     lacks += [m for m in (hp.estimate_missing, hp.truth_missing) if m]
