@@ -35,7 +35,7 @@ from mkflight.ground.report_html import (
 )
 from mkflight.ground.report_plots import PlotImages
 from mkflight.ground.report_precision import hover_precision, precision_section
-from mkflight.ground.report_timeline import timeline, timeline_svg
+from mkflight.ground.report_timeline import PLANNED_CAUSE, timeline, timeline_svg
 from mkflight.ground.report_timing import counters_section, finite, no_summary, timing_section
 from mkflight.logs.flight import FlightData
 from mkflight.logs.schema import (
@@ -85,19 +85,25 @@ def _verdict(flight: FlightData) -> str:
     """The badge: landed and released, failed, or not known."""
     summary = flight.info.summary if flight.info is not None else None
     if isinstance(summary, FlightSummary):
-        ok = summary.exit_code == 0
+        cls = "ok" if summary.exit_code == 0 else "bad"
+        if cls == "ok" and _unplanned(summary.failsafes):
+            cls = "warn"  # landed and released, after a failsafe nobody asked for
         text = f"exit {summary.exit_code}: {summary.end_reason} (phase {summary.final_phase})"
     elif isinstance(summary, HoverSummary):
-        ok = summary.landed and summary.released
+        cls = "ok" if summary.landed and summary.released else "bad"
         text = f"sim hover: {summary.end}"
     else:
-        return f'<span class="verdict unknown">{Cell(no_summary(flight)).html("span")}</span>'
-    cls = "ok" if ok else "bad"
+        cls, text = "unknown", no_summary(flight)
     return f'<span class="verdict {cls}">{Cell(text).html("span")}</span>'
 
 
+def _unplanned(failsafes: list[str]) -> list[str]:
+    """The failsafe decisions that were not a stop request (``stop_sigint``...)."""
+    return [f for f in failsafes if PLANNED_CAUSE not in f]
+
+
 def _flight_rows(s: FlightSummary) -> list[tuple[str, CellLike]]:
-    unplanned = [f for f in s.failsafes if "stop_" not in f]
+    unplanned = _unplanned(s.failsafes)
     rows: list[tuple[str, CellLike]] = [
         ("end reason", s.end_reason),
         ("exit code", Cell(str(s.exit_code), num=True, alarm=s.exit_code != 0)),
@@ -128,7 +134,7 @@ def _hover_rows(s: HoverSummary) -> list[tuple[str, CellLike]]:
 def _summary_section(flight: FlightData, lacks: list[str]) -> str:
     """How it ended, how long, the versions, the battery; ``lacks`` gets a missing summary."""
     info = flight.info
-    rows: list[tuple[str, CellLike]] = [("flight folder", str(flight.path))]
+    rows: list[tuple[str, CellLike]] = [("flight folder", str(flight.path.resolve()))]
     if info is not None:
         # Where the config came from, for a flight.json that records it (None: it does not).
         source = getattr(info, "config_source", None)
@@ -189,8 +195,8 @@ def _plots_section(plots: PlotImages, lacks: list[str]) -> str:
 def _header(flight: FlightData) -> str:
     start = flight.info.start_utc if flight.info is not None else "start time not recorded"
     return (
-        f"<header><h1>{Cell(f'Flight report: {flight.path.name}').html('span')}</h1>"
-        f"{para(f'{flight.path} · {start}', 'sub')}{_verdict(flight)}</header>"
+        f"<header><h1>{Cell(f'Flight report: {flight.path.resolve().name}').html('span')}</h1>"
+        f"{para(f'{flight.path.resolve()} · {start}', 'sub')}{_verdict(flight)}</header>"
     )
 
 
@@ -223,7 +229,7 @@ def build_report(flight: FlightData, plots: PlotImages) -> str:
         "§, TABLE and Fig numbers are those of the 2011 QUT CyPhy MikroKopter documentation."
     )
     return page(
-        f"Flight report: {flight.path.name}",
+        f"Flight report: {flight.path.resolve().name}",
         [_header(flight), _notes(lacks, flight.warnings), *sections, f"<footer>{footer}</footer>"],
     )
 

@@ -28,6 +28,7 @@ h3 { font-size: 1.0em; margin: 0.8em 0 0.3em; }
            font-weight: bold; color: #ffffff; }
 .verdict.ok { background: #2ca02c; }
 .verdict.bad { background: #d62728; }
+.verdict.warn { background: #e6820e; }
 .verdict.unknown { background: #7f7f7f; }
 table { border-collapse: collapse; margin: 0.3em 0 0.8em; font-size: 0.92em; }
 th, td { border: 1px solid #d0d0d0; padding: 0.2em 0.6em; text-align: left;

@@ -218,7 +218,7 @@ def _band(tl: Timeline, start_s: float) -> list[str]:
             f'height="{_BAND_H}" fill="{colour}" stroke="#ffffff">'
             f"<title>{escape(tip)}</title></rect>"
         )
-        if x1 - x0 > 7.5 * len(s.phase):  # the name fits in its span
+        if x1 - x0 > 9.0 * len(s.phase) + 6.0:  # the name fits in its span
             out.append(
                 f'<text x="{(x0 + x1) / 2:.1f}" y="{_BAND_Y + 18:.1f}" text-anchor="middle" '
                 f'font-size="12">{escape(s.phase)}</text>'

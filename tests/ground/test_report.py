@@ -284,6 +284,22 @@ def test_a_folder_without_truth_measures_the_estimate_only(flight: Path, tmp_pat
     assert "no truth.txt in the folder" in text["precision"]
 
 
+def test_a_failsafe_nobody_asked_for_turns_the_verdict_amber_and_its_line_red(
+    flight: Path, tmp_path: Path
+) -> None:
+    folder = tmp_path / "failsafe"
+    shutil.copytree(flight, folder)
+    info = json.loads((folder / "flight.json").read_text())
+    info["summary"]["failsafes"].insert(0, "t+3.00s LAND laser_stale")
+    (folder / "flight.json").write_text(json.dumps(info))
+    html, _ = _report(folder, tmp_path)
+    assert '<span class="verdict warn">' in html
+    assert '<td class="alarm">t+3.00s LAND laser_stale; ' in html
+    plain, _ = _report(flight, tmp_path)
+    assert '<span class="verdict ok">' in plain
+    assert 'class="alarm"' not in plain
+
+
 def test_text_from_the_folder_is_escaped(flight: Path, tmp_path: Path) -> None:
     folder = tmp_path / "hostile"
     shutil.copytree(flight, folder)
