@@ -69,15 +69,17 @@ def hover_precision(flight: FlightData) -> HoverPrecision:
     try:
         estimate = precision(samples, "estimate")
     except AnalysisInputError as err:
-        estimate_missing = (
-            f"no hover precision: {err}"
-            if flight.events
-            else "no hover precision: the "
-            "folder has no events.jsonl (the HOLD steps and set-points are in it)"
-        )
-    if flight.truth is None:
+        estimate_missing = f"no hover precision: {err}"
+        if not flight.events:
+            estimate_missing = (
+                "no hover precision: the folder has no events.jsonl (the HOLD steps and "
+                "set-points are in it)"
+            )
+    if estimate is None:
+        pass  # no HOLD steps: nothing to hold the truth against either
+    elif flight.truth is None:
         truth_missing = "no truth.txt in the folder (a real flight): precision of the estimate only"
-    elif estimate is not None:
+    else:
         try:
             truth = precision(_truth_samples(flight, samples), "truth")
         except AnalysisInputError as err:

@@ -235,6 +235,7 @@ def test_the_two_tables_alone_give_a_page_that_says_what_is_missing(
     assert "no flight.json: the folder holds the original system's tables only" in text["summary"]
     assert "no timeline: the folder has no events.jsonl" in text["timeline"]
     assert "no hover precision" in text["precision"]
+    assert "no truth.txt" not in html  # nothing to measure, with or without a truth
     assert "QUT 2011 std 0.075368" in text["precision"]  # TABLE IX is there all the same
     rows = len((flight / "imu_50ms.log").read_text().splitlines()) - 1
     assert f"TABLE IV rows (imu_50ms.log) {rows}" in text["counters"]
