@@ -47,6 +47,8 @@ from mkflight.logs.schema import (
 
 FILE_NAME: Final = "report.html"
 NOT_ANSWERED: Final = "not known (the FC did not answer)"
+#: The events table stops here (a long laser stall logs one event every 0.3 s).
+MAX_EVENT_ROWS: Final = 400
 PLOT_CAPTIONS: Final = {
     "trajectory": "x-y path: the estimate (TABLE III), the truth when simulated, the set-point",
     "position": "x, y and height against time with their set-points",
@@ -170,8 +172,11 @@ def _timeline_section(flight: FlightData, lacks: list[str]) -> str:
     tl = timeline(flight.events, flight.t0_ns)
     rows: list[list[CellLike]] = [
         [num(m.number), num(m.t_s, ".2f"), Cell(m.kind), Cell(m.text, alarm=m.alarm)]
-        for m in tl.marks
+        for m in tl.marks[:MAX_EVENT_ROWS]
     ]
+    if len(tl.marks) > MAX_EVENT_ROWS:
+        more = f"and {len(tl.marks) - MAX_EVENT_ROWS} more events (events.jsonl has them all)"
+        rows.append([Cell(""), Cell(""), Cell("..."), Cell(more)])
     body = [
         timeline_svg(tl),
         para(

@@ -63,6 +63,7 @@ _BAND_H: Final = 28.0
 _PLOT_Y: Final = 66.0
 _PLOT_H: Final = 90.0
 _H: Final = _PLOT_Y + _PLOT_H + 46.0
+MAX_POINTS: Final = 2000
 _MIN_GAP: Final = 14.0  # marks closer than this share one line and label
 
 
@@ -243,9 +244,11 @@ def _height(tl: Timeline, start_s: float) -> list[str]:
     def y(h_m: float) -> float:
         return _PLOT_Y + _PLOT_H - (h_m - low_m) / (top_m - low_m) * _PLOT_H
 
+    # At most MAX_POINTS vertices (a soak's 34 000 steps would not show more on 900 px).
+    stride = max(1, math.ceil(len(tl.height_m) / MAX_POINTS))
     points = " ".join(
         f"{_x(t, start_s, tl.end_s):.1f},{y(h):.1f}"
-        for t, h in zip(tl.height_t_s, tl.height_m, strict=True)
+        for t, h in zip(tl.height_t_s[::stride], tl.height_m[::stride], strict=True)
     )
     out.append(f'<polyline points="{points}" fill="none" stroke="#1f77b4" stroke-width="1.5"/>')
     for h_m in (low_m, top_m):
