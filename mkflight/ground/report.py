@@ -42,6 +42,7 @@ from mkflight.logs.schema import (
     UNSET,
     FlightSummary,
     HoverSummary,
+    Preflight,
     UnknownSummary,
 )
 
@@ -65,11 +66,10 @@ class ReportError(MkflightError):
 def _battery(flight: FlightData) -> list[tuple[str, CellLike]]:
     """Battery voltage: the pre-flight check's, then start, end and minimum in flight."""
     rows: list[tuple[str, CellLike]] = []
-    summary = flight.info.summary if flight.info is not None else None
-    if isinstance(summary, FlightSummary) and summary.preflight is not UNSET:
-        rows.append(
-            ("battery at the pre-flight check", num(summary.preflight.battery_v, ".2f", "V"))
-        )
+    # The check's event: there in a killed flight's log too, which has no summary.
+    checked = next((e for e in flight.events if isinstance(e, Preflight)), None)
+    if checked is not None:
+        rows.append(("battery at the pre-flight check", num(checked.battery_v, ".2f", "V")))
     for source, values in (("step events", flight.steps), ("DebugOut read", flight.samples)):
         volts = finite(values["battery_v"])
         if len(volts):

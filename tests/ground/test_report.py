@@ -168,6 +168,14 @@ def test_chromium_renders_the_flight_s_own_figures(
     dom = _browser(page, tmp_path, "--dump-dom", page.as_uri()).stdout
     text = sections(dom)
     s = _summary(flight)
+    info = json.loads((flight / "flight.json").read_text())
+    for key in ("start_utc", "mkflight_version", "fc_version"):
+        assert info[key] in text["summary"], key
+    events = [json.loads(line) for line in (flight / "events.jsonl").read_text().splitlines()]
+    checked = next(e for e in events if e["event"] == "preflight")
+    assert f"pre-flight check {checked['battery_v']:.2f} V" in text["summary"]
+    volts = [e["battery_v"] for e in events if e["event"] == "step" and e["battery_v"]]
+    assert f"{volts[0]:.2f} / {volts[-1]:.2f} / {min(volts):.2f} V" in text["summary"]
     assert s["end_reason"] in text["summary"]
     assert f"{s['duration_s']:.1f} s" in text["summary"]
     assert f"{s['flight_s']:.1f} s" in text["summary"]
@@ -261,6 +269,8 @@ def test_a_killed_flight_without_summary_shows_the_step_events_timing(
     (folder / "events.jsonl").write_text("\n".join(lines[:cut]) + "\n" + lines[cut][:25])
     _, text = _report(folder, tmp_path)
     assert "flight.json has no summary: the flight did not end" in text["summary"]
+    checked = json.loads(next(line for line in lines if '"event":"preflight"' in line))
+    assert f"pre-flight check {checked['battery_v']:.2f} V" in text["summary"]
     latency = [
         e["latency_ms"]
         for e in map(json.loads, lines[:cut])
