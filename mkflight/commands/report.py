@@ -20,13 +20,20 @@ def cmd_report(*, log_dir: str, out: str | None) -> int:
             (exit 1).
         ReportError: the HTML file cannot be written (exit 1).
     """
-    from mkflight.ground.report import FILE_NAME, build_report, write_report
+    from mkflight.ground.report import FILE_NAME, ReportError, build_report, write_report
     from mkflight.ground.report_plots import plot_images
     from mkflight.logs.flight import load_flight
 
     flight = load_flight(log_dir)
     path = Path(out) if out is not None else Path(log_dir) / FILE_NAME
-    print(write_report(path, build_report(flight, plot_images(flight))))
+    html = build_report(flight, plot_images(flight))
+    try:
+        print(write_report(path, html))
+    except ReportError as err:
+        if out is not None:
+            raise
+        msg = f"{err} (-o FILE writes it elsewhere)"  # a flight folder the service owns
+        raise ReportError(msg) from err
     return 0
 
 

@@ -13,6 +13,7 @@ refused that :func:`~mkflight.logs.load_flight` reads.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Final
@@ -255,6 +256,8 @@ def write_report(path: Path, html: str) -> Path:
             f.write(html)
         tmp.replace(path)
     except OSError as err:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)  # no half page left behind (a full disk, a folder)
         msg = f"{path}: cannot write the report: {err.strerror or err}"
         raise ReportError(msg) from err
     return path

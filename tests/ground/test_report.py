@@ -357,3 +357,25 @@ def test_an_unwritable_output_is_one_error_line(flight: Path, tmp_path: Path) ->
     assert done.stderr.startswith(f"error: {out}: cannot write the report")
     assert done.stderr.count("\n") == 1
     assert not (flight / "report.html").exists()
+
+
+def test_an_output_that_is_a_folder_leaves_nothing_behind(flight: Path, tmp_path: Path) -> None:
+    out = tmp_path / "folder"
+    out.mkdir()
+    done = _mkflight("report", str(flight), "-o", str(out))
+    assert done.returncode == 1
+    assert done.stderr.startswith(f"error: {out}: cannot write the report: Is a directory")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["folder"]
+    assert not any(out.iterdir())
+
+
+def test_a_folder_it_cannot_write_into_points_to_the_output_option(
+    flight: Path, tmp_path: Path
+) -> None:
+    folder = tmp_path / "flight"
+    shutil.copytree(flight, folder)
+    (folder / "report.html").mkdir()  # stands in for a folder the service owns
+    done = _mkflight("report", str(folder))
+    assert done.returncode == 1
+    assert done.stderr.rstrip("\n").endswith("(-o FILE writes it elsewhere)")
+    assert done.stderr.count("\n") == 1
