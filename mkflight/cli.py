@@ -25,6 +25,7 @@ from mkflight.commands import (
     mk_info,
     plot,
     replay,
+    report,
     scanmatch,
     sim_run,
     tune,
@@ -56,6 +57,7 @@ GROUPS: tuple[Callable[[Subparsers], None], ...] = (
     analyze.add_parser,
     tune.add_parser,
     export.add_parser,
+    report.add_parser,
 )
 
 

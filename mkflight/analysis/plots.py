@@ -86,6 +86,15 @@ def make_plots(flight: FlightData, out_dir: str | Path) -> list[Path]:
     Raises:
         PlotError: matplotlib is not installed, or ``out_dir`` cannot be written.
     """
+    return save_figures(flight_figures(flight), out_dir)
+
+
+def flight_figures(flight: FlightData) -> list[tuple[str, Figure]]:
+    """Every figure of ``flight`` (module docstring), each with its file's name sans ``.png``.
+
+    Raises:
+        PlotError: matplotlib is not installed.
+    """
     ensure_matplotlib()
     steps = _steps(flight)
     figures: list[tuple[str, Figure]] = [
@@ -96,7 +105,7 @@ def make_plots(flight: FlightData, out_dir: str | Path) -> list[Path]:
     ]
     if steps is not None:
         figures.append(("battery", _battery(steps)))
-    return save_figures(figures, out_dir)
+    return figures
 
 
 def _steps(flight: FlightData) -> Records | None:
