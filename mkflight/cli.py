@@ -18,6 +18,7 @@ from mkflight import __version__, cli_types
 from mkflight.commands import (
     analyze,
     calibrate,
+    config_cmd,
     flight_time,
     fly,
     laser_scan,
@@ -54,6 +55,7 @@ GROUPS: tuple[Callable[[Subparsers], None], ...] = (
     plot.add_parser,
     analyze.add_parser,
     tune.add_parser,
+    config_cmd.add_parser,
 )
 
 
