@@ -581,7 +581,7 @@ SYSTEM_CONFIG: Final = "/etc/mkflight/config.yaml"
 FoundBy = Literal["option", "environment", "system", "default"]
 
 
-class ConfigSource(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+class ConfigSource(msgspec.Struct, frozen=True, kw_only=True):
     """Where a command's configuration came from (:func:`locate_config`).
 
     ``flight.json`` keeps it as ``config_source``, beside the config itself.
