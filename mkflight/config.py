@@ -45,7 +45,9 @@ class MkSigns(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=T
 class MkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """The FlightCtrl link and the MK raw<->SI calibration (SPEC §1-2, §D eq 7-8)."""
 
-    port: str = "/dev/ttyUSB0"
+    port: str = "/dev/mkflight-fc"
+    """The FC's adapter by the name ``tools/99-mkflight.rules`` gives it (not ttyUSBn,
+    whose number depends on the order the adapters enumerate)."""
     baudrate: Annotated[int, Meta(ge=1200, le=4_000_000)] = 57600
     debug_interval_10ms: Annotated[int, Meta(ge=1, le=255)] = 5
     resubscribe_s: Annotated[float, Meta(gt=0, le=2.0)] = 1.3
@@ -75,7 +77,8 @@ class MkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
 class LaserConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """The Hokuyo URG and the laser hat (SPEC §2-3, §K eq 26)."""
 
-    port: str = "/dev/ttyACM0"
+    port: str = "/dev/mkflight-urg"
+    """The URG's port by the name ``tools/99-mkflight.rules`` gives it."""
     scan_steps: tuple[Step, Step] = (150, 725)
     hat_steps: tuple[Step, Step] = (44, 127)
     hat_offset_m: Annotated[float, Meta(ge=0, le=1)] = 0.05
