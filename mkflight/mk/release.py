@@ -34,7 +34,7 @@ class ReleaseResult:
 def release_frames(count: int) -> list[bytes]:
     """The ``count`` frames of a release, in order: neutral, gas 0, Config 0, Frame 1..count.
 
-    Frame 9 of them is the protocol's vector MK-11 byte for byte.
+    Each is the protocol's vector MK-11 (the same frame with Frame 9) but for its number.
     """
     return [ExternControl.neutral(frame=i).encode() for i in range(1, count + 1)]
 
