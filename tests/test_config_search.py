@@ -270,3 +270,19 @@ def test_flight_json_keeps_the_source_and_older_files_read(tmp_path: Path) -> No
     write_flight_json(older, new_flight_info(start, Config()))
     assert "config_source" not in json.loads((older / "flight.json").read_text("utf-8"))
     assert read_flight_json(older).config_source is None
+
+
+def test_a_sim_hover_flies_the_system_config_and_records_it(
+    system: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The whole path: the search finds the system file, the flight uses and records it."""
+    folder = tmp_path / "flight"
+    argv = ["sim", "hover", "--duration", "4", "--log-dir", str(folder), "--set", "safety.box_m=3"]
+    assert main(argv) == 0
+    assert capsys.readouterr().err.startswith(f"config: {system} with 1 --set\n")
+    info = read_flight_json(folder)
+    assert info.config_source == ConfigSource(
+        file=str(system), found_by="system", overrides=("safety.box_m=3",)
+    )
+    assert info.config["control"]["kp_xy"] == 1.3  # the system file's value was flown
+    assert info.config["safety"]["box_m"] == 3.0
