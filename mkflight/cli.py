@@ -18,6 +18,7 @@ from mkflight import __version__, cli_types
 from mkflight.commands import (
     analyze,
     calibrate,
+    config_cmd,
     export,
     flight_time,
     fly,
@@ -58,6 +59,7 @@ GROUPS: tuple[Callable[[Subparsers], None], ...] = (
     tune.add_parser,
     export.add_parser,
     report.add_parser,
+    config_cmd.add_parser,
 )
 
 

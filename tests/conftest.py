@@ -24,6 +24,9 @@ SHARED_DIR = Path(
 
 
 def pytest_configure(config: pytest.Config) -> None:
+    # A config the developer exported must not reach the commands the tests run: they are
+    # written against the built-in defaults (tests/test_config_search.py sets its own).
+    os.environ.pop("MKFLIGHT_CONFIG", None)
     config.addinivalue_line(
         "markers",
         "shared(path): cross-checks an in-project transcription against ../shared/<path> "

@@ -73,6 +73,9 @@ def test_every_command_of_the_tree_is_there() -> None:
         "tune",
         "export",
         "report",
+        "config show",
+        "config check",
+        "mk release",
     }
 
 
@@ -91,6 +94,9 @@ def test_each_option_feeds_the_parameter_of_its_name(
         if not isinstance(a, argparse._HelpAction | argparse._SubParsersAction)
     }
     parameters = set(inspect.signature(command.function).parameters)
+    if "config_path" in dests:  # --config also feeds how the file was found (Command)
+        dests.add("config_source")
+        parameters.add("config_source")
     assert parameters - dests == set(), f"{path}: parameters no option feeds"
     assert dests - parameters == FEED_NOTHING.get(path, set()), f"{path}: options fed nowhere"
 

@@ -18,9 +18,12 @@ import inspect
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Final, Literal, NoReturn, TypeAlias
+from typing import TYPE_CHECKING, Any, Final, Literal, NoReturn, TypeAlias
 
 from mkflight import cli_types
+
+if TYPE_CHECKING:
+    from mkflight.config import ConfigSource
 
 #: Exit code of a usage or configuration error (SPEC §7).
 EXIT_USAGE: Final = 2
@@ -68,9 +71,38 @@ class Command:
     function: Callable[..., int]
 
     def __call__(self, args: argparse.Namespace) -> int:
-        """Run the command on the parsed ``args``; its exit code."""
+        """Run the command on the parsed ``args``; its exit code.
+
+        A command of :func:`config_options` gets, as ``config_path``, the file the search
+        found (:func:`use_config`), and as ``config_source`` (if it takes one) how.
+        """
         names = inspect.signature(self.function).parameters
-        return int(self.function(**{k: v for k, v in vars(args).items() if k in names}))
+        given: dict[str, Any] = vars(args)
+        kwargs = {k: v for k, v in given.items() if k in names}
+        if "config_path" in names:
+            source = use_config(given["config_path"], given.get("overrides", []))
+            kwargs["config_path"] = source.file
+            if "config_source" in names:
+                kwargs["config_source"] = source
+        return int(self.function(**kwargs))
+
+
+def use_config(config_path: str | None, overrides: list[str]) -> ConfigSource:
+    """Find the config (``--config``, ``$MKFLIGHT_CONFIG``, /etc, defaults), check it, say it.
+
+    The ``config: ...`` line goes to stderr (stdout may be a command's JSON), at the
+    journal's info priority, once the config loaded: a bad one is only its error line.
+
+    Raises:
+        ConfigError: ``$MKFLIGHT_CONFIG`` names no file, or the config is invalid.
+    """
+    from mkflight.config import load_located, locate_config
+    from mkflight.eventlog import stderr_prefix
+
+    source = locate_config(config_path, overrides)
+    load_located(source)
+    print(f"{stderr_prefix('info')}config: {source.describe()}", file=sys.stderr, flush=True)
+    return source
 
 
 def config_options() -> Parser:
@@ -80,7 +112,8 @@ def config_options() -> Parser:
         "--config",
         dest="config_path",
         metavar="FILE",
-        help="YAML configuration (default: built-in)",
+        help="YAML configuration (default: $MKFLIGHT_CONFIG, else /etc/mkflight/config.yaml "
+        "if it exists, else the built-in defaults)",
     )
     p.add_argument(
         "--set",

@@ -13,7 +13,7 @@ from mkflight.commands.args import Command, Subparsers, add_json, add_ports, con
 from mkflight.errors import ConfigError, FlightError, MkflightError, PortNotFoundError
 
 if TYPE_CHECKING:
-    from mkflight.config import Config
+    from mkflight.config import Config, ConfigSource
     from mkflight.logs.schema import FlightSummary
 
 
@@ -101,6 +101,7 @@ async def _fly(
     duration_s: float | None,
     config_path: str | None,
     overrides: list[str],
+    config_source: ConfigSource | None,
 ) -> tuple[int, str, FlightSummary]:
     from mkflight.flight.app import FlightApp, FlightOptions
     from mkflight.flight.flight_logs import TRUTH_FILE
@@ -126,6 +127,7 @@ async def _fly(
                 height_m=height_m,
                 duration_s=duration_s,
                 status_tty=sys.stderr.isatty(),
+                config_source=config_source,
             ),
         )
         report = await app.fly()
@@ -176,6 +178,7 @@ def cmd_fly(
     as_json: bool,
     config_path: str | None,
     overrides: list[str],
+    config_source: ConfigSource | None = None,
 ) -> int:
     """Fly: pre-flight checks, handshake, take-off, hold, soft landing, release (SPEC §7).
 
@@ -222,6 +225,7 @@ def cmd_fly(
             duration_s=duration_s,
             config_path=config_path,
             overrides=overrides,
+            config_source=config_source,
         )
     )
     truth = _truth_precision(folder)  # when a simulator wrote its truth there

@@ -1,7 +1,9 @@
-"""``mkflight mk info``: the FC's version and DebugOut samples in SI units.
+"""``mkflight mk info`` and ``mk release``: the FC's version and samples; hand it back.
 
-It never takes control; like every link it still closes by sending Config = 0, so an FC
-left under extern control by a crashed program is handed back to the pilot.
+``info`` never takes control; like every link it still closes by sending Config = 0, so
+an FC left under extern control by a crashed program is handed back to the pilot.
+``release`` sends only that (:mod:`mkflight.mk.release`), for the service's
+``ExecStopPost=`` after a daemon that died without releasing.
 """
 
 from __future__ import annotations
@@ -162,10 +164,69 @@ def cmd_mk_info(
     return asyncio.run(_mk_info(port, sim, count, as_json, cfg))
 
 
+#: Longest wait for the port to open (a USB adapter that hangs must not hang the command).
+OPEN_TIMEOUT_S = 2.0
+
+
+async def _mk_release(port: str, cfg: Config) -> int:
+    import asyncio
+
+    from mkflight.errors import LinkError
+    from mkflight.io.serial import open_serial
+    from mkflight.mk.release import release
+
+    mk = cfg.mk
+    interval_s = max(mk.release_interval_s, mk.min_frame_gap_s)
+    budget_s = OPEN_TIMEOUT_S + mk.release_frames * interval_s + mk.answer_timeout_s
+    try:
+        async with asyncio.timeout(budget_s):
+            stream = await open_serial(port, mk.baudrate)
+            try:
+                result = await release(
+                    stream,
+                    count=mk.release_frames,
+                    interval_s=interval_s,
+                    confirm_timeout_s=mk.answer_timeout_s,
+                )
+            finally:
+                await stream.close()
+    except TimeoutError as err:
+        msg = f"{port}: the release did not finish within {budget_s:g} s (a hung port?)"
+        raise LinkError(msg) from err
+    if not result.confirmed:
+        msg = (
+            f"sent {result.sent} Config = 0 frames on {port}, but the FlightCtrl confirmed "
+            f"none within {mk.answer_timeout_s:g} s (is it powered, on this port, at "
+            f"{mk.baudrate} baud?)"
+        )
+        raise LinkError(msg)
+    print(
+        f"released: the FlightCtrl on {port} confirmed {len(result.confirmed)} of "
+        f"{result.sent} Config = 0 frames"
+    )
+    return 0
+
+
+def cmd_mk_release(*, port: str | None, config_path: str | None, overrides: list[str]) -> int:
+    """Send Config = 0 (neutral, gas 0) frames so the FC leaves extern control at once.
+
+    Raises:
+        PortNotFoundError: the port does not exist (exit 2).
+        LinkError: it cannot be opened or written, it hung, or no frame was confirmed.
+    """
+    import asyncio
+
+    from mkflight.config import load_config
+
+    cfg = load_config(config_path, overrides)
+    return asyncio.run(_mk_release(port or cfg.mk.port, cfg))
+
+
 def add_parser(subparsers: Subparsers) -> None:
-    """``mk info``: the FlightCtrl group and its one command."""
+    """``mk info`` and ``mk release``: the FlightCtrl group."""
     mk = subparsers.add_parser("mk", help="the MikroKopter FlightCtrl link")
-    info = subcommands(mk, "mk_command").add_parser(
+    commands = subcommands(mk, "mk_command")
+    info = commands.add_parser(
         "info",
         parents=[config_options()],
         help="print the FC version and DebugOut samples in SI units",
@@ -176,3 +237,15 @@ def add_parser(subparsers: Subparsers) -> None:
     add_count(info, default=10, items="samples")
     add_json(info, "one JSON object per sample and line")
     info.set_defaults(func=Command(cmd_mk_info))
+    release = commands.add_parser(
+        "release",
+        parents=[config_options()],
+        help="hand the FC back to the pilot: send Config = 0 (for ExecStopPost=)",
+        description="Send mk.release_frames neutral ExternControl frames (sticks 0, gas 0, "
+        "Config = 0) mk.release_interval_s apart, and wait up to mk.answer_timeout_s for "
+        "the FC's confirms: the FC leaves extern control at once instead of after its "
+        "≈ 5 s hold. Asks nothing else of the FC. Exit 0 once a frame is confirmed, 1 if "
+        "none is (or the port hangs), 2 if the port does not exist.",
+    )
+    release.add_argument("--port", metavar="DEV", help="serial device of the FC (default mk.port)")
+    release.set_defaults(func=Command(cmd_mk_release))

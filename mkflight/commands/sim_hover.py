@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from mkflight.commands.args import (
     Command,
@@ -15,6 +16,9 @@ from mkflight.commands.args import (
     config_options,
 )
 from mkflight.errors import ConfigError
+
+if TYPE_CHECKING:
+    from mkflight.config import ConfigSource
 
 
 def cmd_sim_hover(
@@ -29,6 +33,7 @@ def cmd_sim_hover(
     as_json: bool,
     config_path: str | None,
     overrides: list[str],
+    config_source: ConfigSource | None = None,
 ) -> int:
     """Fly the simulated vehicle (take-off, hold, land) and print the hover precision.
 
@@ -57,6 +62,7 @@ def cmd_sim_hover(
         height_m=height_m,
         excite_m=excite_m,
         scans=scans,
+        config_source=config_source,
     )
     if as_json:
         print(json.dumps(result.as_dict()))

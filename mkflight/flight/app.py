@@ -34,7 +34,7 @@ from pathlib import Path
 import structlog
 
 from mkflight.clock import Clock, MonotonicClock
-from mkflight.config import Config
+from mkflight.config import Config, ConfigSource
 from mkflight.conversions import NS_PER_S
 from mkflight.errors import FlightError, PreflightError
 from mkflight.flight.laser_inbox import AttitudeHistory, LaserInbox
@@ -90,6 +90,7 @@ class FlightOptions:
     status_tty: bool = False
     stop_deadline_s: float = STOP_DEADLINE_S
     durable_logs: bool = True  # every row to the kernel at once (False: a replay's)
+    config_source: ConfigSource | None = None  # for flight.json: where the config came from
 
 
 @dataclass(slots=True)
@@ -172,6 +173,7 @@ class FlightApp:
             laser_port=opts.laser_port,
             durable=opts.durable_logs,
             on_log_error=self._log_failed,
+            config_source=opts.config_source,
         )
         version, samples = await check_fc(link, self.cfg.safety.warn_voltage_v)
         info, scans = await check_laser(driver)

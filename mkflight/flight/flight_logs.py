@@ -19,7 +19,7 @@ from typing import Any, TypeVar
 import structlog
 
 from mkflight.clock import Clock
-from mkflight.config import Config
+from mkflight.config import Config, ConfigSource
 from mkflight.control.controller import Setpoint
 from mkflight.errors import PreflightError
 from mkflight.flight.step import ImuStepOutput
@@ -64,6 +64,7 @@ class FlightLogs:
         clock: Clock,
         on_error: Callable[[OSError], None],
         durable: bool = True,
+        config_source: ConfigSource | None = None,
     ) -> None:
         """Create the folder's files (the pre-flight check 'log dir').
 
@@ -84,7 +85,9 @@ class FlightLogs:
             if folder_in_use(folder):
                 msg = f"{folder} is not empty: a flight folder is never overwritten"
                 raise PreflightError(check="log dir", detail=msg)
-            self.info: FlightInfo = new_flight_info(datetime.now(UTC), cfg)
+            self.info: FlightInfo = new_flight_info(
+                datetime.now(UTC), cfg, config_source=config_source
+            )
             write_flight_json(folder, self.info)
             self.t3 = self._keep(Table3Writer(folder))
             self.t4 = self._keep(Table4Writer(folder))

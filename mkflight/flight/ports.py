@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from mkflight.clock import Clock
-from mkflight.config import Config
+from mkflight.config import Config, ConfigSource
 from mkflight.flight.flight_logs import FlightLogs
 from mkflight.flight.links import open_laser, open_mk
 from mkflight.flight.policy import FlightPolicy
@@ -60,6 +60,7 @@ class FlightPorts:
         laser_port: str,
         durable: bool,
         on_log_error: Callable[[OSError], None],
+        config_source: ConfigSource | None = None,
     ) -> OpenPorts:
         """Create the folder's files, then open both ports as links (see the module docstring).
 
@@ -75,6 +76,7 @@ class FlightPorts:
             clock=clock,
             on_error=on_log_error,
             durable=durable,
+            config_source=config_source,
         )
         self.taps = taps = PortTaps(
             logs.mk_raw, logs.laser_raw, clock=clock, policy=self._policy, stats=self._stats

@@ -8,8 +8,14 @@ Format: one JSON object (UTF-8, indented)::
       "mkflight_version": "0.1.0",
       "fc_version": "0.84a",                        # null until the FC answered
       "config": {...},                              # mkflight.config.config_to_dict
+      "config_source": {...},                       # where it came from (may be absent)
       "summary": {...}                              # null until the flight ends
     }
+
+``config_source`` is a :class:`~mkflight.config.ConfigSource`: the file the command's
+search found (``--config``, ``$MKFLIGHT_CONFIG``, ``/etc/mkflight/config.yaml``) or none,
+and the ``--set`` items. It is absent when the writer did not know it (a replay, a
+library caller, an older mkflight): an optional key, so the format stays 1.
 
 ``summary`` is a :class:`~mkflight.logs.schema.FlightSummary` (the daemon's, told by its
 ``end_reason`` key) or a :class:`~mkflight.logs.schema.HoverSummary` (``sim hover``'s,
@@ -42,7 +48,7 @@ from typing import Any, Final
 import msgspec
 
 import mkflight
-from mkflight.config import Config, config_to_dict
+from mkflight.config import Config, ConfigSource, config_to_dict
 from mkflight.errors import ReplayError
 from mkflight.logs._file import MAX_JSON_DEPTH, read_bytes, too_deep
 from mkflight.logs.schema import FlightSummary, HoverSummary, UnknownSummary
@@ -67,9 +73,15 @@ class FlightInfo:
     config: dict[str, Any]
     summary: Summary | None = None
     log_format: int = LOG_FORMAT
+    config_source: ConfigSource | None = None
 
 
-def new_flight_info(start: datetime, cfg: Config, fc_version: str | None = None) -> FlightInfo:
+def new_flight_info(
+    start: datetime,
+    cfg: Config,
+    fc_version: str | None = None,
+    config_source: ConfigSource | None = None,
+) -> FlightInfo:
     """The metadata at take-off; ``start`` comes from the caller (no clock read here).
 
     Raises:
@@ -80,7 +92,7 @@ def new_flight_info(start: datetime, cfg: Config, fc_version: str | None = None)
         raise ValueError(msg)
     stamp = start.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
     config = json.loads(json.dumps(config_to_dict(cfg)))  # as read back: lists, not tuples
-    return FlightInfo(stamp, mkflight.__version__, fc_version, config)
+    return FlightInfo(stamp, mkflight.__version__, fc_version, config, config_source=config_source)
 
 
 def with_summary(info: FlightInfo, summary: Summary) -> FlightInfo:
@@ -141,6 +153,10 @@ def write_flight_json(folder: str | Path, info: FlightInfo) -> Path:
     path = Path(folder) / FILE_NAME
     tmp = path.with_name(FILE_NAME + ".tmp")
     data = {key: json_safe(to_plain(getattr(info, key))) for key in _KEYS}
+    if info.config_source is not None:  # after the config, before the summary
+        summary = data.pop("summary")
+        data["config_source"] = to_plain(info.config_source)
+        data["summary"] = summary
     text = json.dumps(data, indent=2, allow_nan=False) + "\n"
     # A new file ("x": O_EXCL never follows a symlink), so a link planted in the folder
     # under the tmp name is not written through; one left by a killed write is removed.
@@ -205,4 +221,16 @@ def read_flight_json(path: str | Path) -> FlightInfo:
     summary = data["summary"]
     if summary is not None:
         data["summary"] = summary_from_dict(summary)
-    return FlightInfo(**{key: data[key] for key in _KEYS})
+    return FlightInfo(**{key: data[key] for key in _KEYS}, config_source=_config_source(path, data))
+
+
+def _config_source(path: Path, data: dict[str, Any]) -> ConfigSource | None:
+    """``config_source`` as read (None when absent or null)."""
+    raw = data.get("config_source")
+    if raw is None:
+        return None
+    try:
+        return msgspec.convert(raw, ConfigSource)
+    except msgspec.ValidationError as err:
+        msg = f"{path}: config_source: {err}"
+        raise ReplayError(msg) from err

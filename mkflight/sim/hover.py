@@ -40,7 +40,7 @@ from typing import Final
 
 import numpy as np
 
-from mkflight.config import Config
+from mkflight.config import Config, ConfigSource
 from mkflight.control.controller import Setpoint
 from mkflight.control.phases import Phase, PhaseRequests
 from mkflight.conversions import NS_PER_S, US_PER_S
@@ -198,6 +198,7 @@ def run_hover(
     faults: HoverFaults | None = None,
     excite_m: float = 0.0,
     scans: bool = False,
+    config_source: ConfigSource | None = None,
 ) -> HoverResult:
     """Fly a simulated hover of ``duration_s`` (take-off, hold, land) and measure it.
 
@@ -207,12 +208,12 @@ def run_hover(
     of the true pose plus noise. ``excite_m`` > 0 moves the HOLD set-point in x and y,
     independently, between ±excite_m with random dwell times (:class:`Excitation`): the
     input a response test needs (``analyze latency``). The precision is then the tracking
-    error about the moving set-point.
+    error about the moving set-point. ``config_source``: for ``flight.json``.
     """
     wall0, cpu0 = time.perf_counter(), time.process_time()
     faults = HoverFaults() if faults is None else faults
     log_dir.mkdir(parents=True, exist_ok=True)
-    flight = FlightSide(cfg, log_dir, height_m=height_m, scans=scans)
+    flight = FlightSide(cfg, log_dir, height_m=height_m, scans=scans, config_source=config_source)
     steps_asked = streamed_steps(cfg.laser)  # the driver's MD request (flight side)
     params = airframe_from_config(cfg.sim)
     airframe = {"kind": cfg.sim.airframe, "seed": cfg.sim.seed, **describe(params)}

@@ -24,7 +24,7 @@ from typing import Any, Final
 
 import numpy as np
 
-from mkflight.config import Config
+from mkflight.config import Config, ConfigSource
 from mkflight.conversions import MM_PER_M, NS_PER_S
 from mkflight.flight.laser_pipeline import LaserPipeline
 from mkflight.flight.step import FlightCore, ImuStepOutput
@@ -73,14 +73,24 @@ def scan_from_raw(raw: RawScan) -> Scan:
 class FlightSide:
     """The flight side of ``sim hover``: the daemon's core, calibration, pipeline and logs."""
 
-    def __init__(self, cfg: Config, log_dir: Path, *, height_m: float | None, scans: bool) -> None:
+    def __init__(
+        self,
+        cfg: Config,
+        log_dir: Path,
+        *,
+        height_m: float | None,
+        scans: bool,
+        config_source: ConfigSource | None = None,
+    ) -> None:
         """The core, the calibration, the pipeline (``scans``); write ``flight.json``."""
         self.cfg = cfg
         self.core = FlightCore(cfg, height_m=height_m)
         self.cal = MkCalibration.from_config(cfg.mk)  # the flight's, not the airframe's
         self.pipeline = LaserPipeline(cfg) if scans else None
         self.attitude: deque[tuple[int, float, float]] = deque(maxlen=ATTITUDE_SAMPLES)
-        self.info = new_flight_info(datetime.now(UTC), cfg, fc_version=cfg.sim.fc.version)
+        self.info = new_flight_info(
+            datetime.now(UTC), cfg, fc_version=cfg.sim.fc.version, config_source=config_source
+        )
         write_flight_json(log_dir, self.info)
         self.t3 = Table3Writer(log_dir)
         self.t4 = Table4Writer(log_dir)

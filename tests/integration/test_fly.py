@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mkflight.config import ConfigSource
 from mkflight.logs.events import read_events
 from mkflight.logs.flight_json import read_flight_json
 from mkflight.logs.raw import read_raw
@@ -248,6 +249,10 @@ def test_readme_command_flies_and_leaves_a_complete_folder(flights: dict[str, Ou
     d = json.loads(o.stdout)
     assert d["exit_code"] == 0
     assert d["final_phase"] == "RELEASED"
+    # Where its config came from: said on stderr first, recorded in flight.json.
+    assert o.stderr.startswith("config: built-in defaults\n")
+    source = read_flight_json(o.folder / "flight.json").config_source
+    assert source == ConfigSource(file=None, found_by="default", overrides=())
 
 
 def test_external_ptys_hover_precision_rates_and_columns(flights: dict[str, Outcome]) -> None:
@@ -394,7 +399,7 @@ def test_usage_errors(tmp_path: Path) -> None:
     assert proc.returncode == 2  # a port that does not exist is a usage error
     assert "nope" in proc.stderr
     assert "Traceback" not in proc.stderr
-    assert proc.stderr.count("\n") == 1
+    assert proc.stderr.removeprefix("config: built-in defaults\n").count("\n") == 1
 
 
 @pytest.mark.parametrize("name", [sc.name for sc in SCENARIOS])

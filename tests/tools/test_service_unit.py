@@ -185,6 +185,20 @@ def test_exec_start_is_a_valid_fly_command(unit: Unit) -> None:
     assert flights.is_relative_to(state)
 
 
+def test_exec_stop_post_releases_the_fc(unit: Unit) -> None:
+    """After any end of the daemon, ``mk release``: '-' only, never '+' (root) or '!'."""
+    line = _one(unit, "Service", "ExecStopPost")
+    assert line.startswith("-/usr/local/bin/mkflight ")  # a failure is logged, not fatal
+    argv = shlex.split(line.removeprefix("-"))
+    args = build_parser().parse_args(argv[1:])
+    assert args.func.function.__name__ == "cmd_mk_release"
+    assert args.config_path is None  # the search: /etc/mkflight/config.yaml's mk.port
+    assert args.port is None
+    # ExecStart names its config: a missing file fails instead of flying the defaults.
+    start = build_parser().parse_args(shlex.split(_one(unit, "Service", "ExecStart"))[1:])
+    assert start.config_path == "/etc/mkflight/config.yaml"
+
+
 def test_single_valued_keys_are_set_once(unit: Unit) -> None:
     repeatable = {"DeviceAllow", "SystemCallFilter", "Environment"}
     for section, keys in unit.items():
