@@ -139,13 +139,12 @@ def _summary_section(flight: FlightData, lacks: list[str]) -> str:
     info = flight.info
     rows: list[tuple[str, CellLike]] = [("flight folder", str(flight.path.resolve()))]
     if info is not None:
-        # Where the config came from, for a flight.json that records it (None: it does not).
-        source = getattr(info, "config_source", None)
+        source = info.config_source  # None: a flight.json that does not record it
         rows += [
             ("start (UTC)", info.start_utc),
             ("mkflight version", info.mkflight_version),
             ("FC version", info.fc_version or NOT_ANSWERED),
-            ("config source", str(source) if source else "not recorded in flight.json"),
+            ("config source", source.describe() if source else "not recorded in flight.json"),
         ]
     summary = info.summary if info is not None else None
     body: list[str] = []

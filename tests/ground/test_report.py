@@ -171,6 +171,8 @@ def test_chromium_renders_the_flight_s_own_figures(
     info = json.loads((flight / "flight.json").read_text())
     for key in ("start_utc", "mkflight_version", "fc_version"):
         assert info[key] in text["summary"], key
+    assert info["config_source"]["file"] is None  # the fixture flies the built-in defaults
+    assert "config source built-in defaults" in " ".join(text["summary"].split())
     events = [json.loads(line) for line in (flight / "events.jsonl").read_text().splitlines()]
     checked = next(e for e in events if e["event"] == "preflight")
     assert f"pre-flight check {checked['battery_v']:.2f} V" in text["summary"]
