@@ -19,6 +19,7 @@ from mkflight.commands import (
     analyze,
     calibrate,
     flight_time,
+    flights,
     fly,
     laser_scan,
     mk_info,
@@ -54,6 +55,7 @@ GROUPS: tuple[Callable[[Subparsers], None], ...] = (
     plot.add_parser,
     analyze.add_parser,
     tune.add_parser,
+    flights.add_parser,
 )
 
 

@@ -71,6 +71,7 @@ def test_every_command_of_the_tree_is_there() -> None:
         "analyze precision",
         "analyze latency",
         "tune",
+        "flights",
     }
 
 
