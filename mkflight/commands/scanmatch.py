@@ -33,6 +33,7 @@ from mkflight.commands.args import Command, Subparsers, config_options
 if TYPE_CHECKING:
     from mkflight.config import Config
     from mkflight.scanmatch.carmen import LaserRecord
+    from mkflight.scanmatch.geometry import FloatArray
 
 
 def cmd_scanmatch(
@@ -61,7 +62,12 @@ def cmd_scanmatch(
 
     cfg = load_config(config_path, overrides)
     ours = _is_recording(log)
-    records, malformed = _read_ours(log, cfg) if ours else _read_carmen(log, cfg)
+    points = None
+    if ours:
+        records, points = _read_ours(log, cfg)
+        malformed = 0
+    else:
+        records, malformed = _read_carmen(log, cfg)
     odom_data = read_trajectory(odom) if odom is not None else None
     if ours and odom_data is not None:
         odom_data = odom_in_math(odom_data)
@@ -74,6 +80,7 @@ def cmd_scanmatch(
             odom=odom_data,
             config=cfg.scanmatch,
             on_scan=tick,
+            points=points,
         )
     if ours:
         tracked = poses_in_w(tracked)
@@ -132,23 +139,47 @@ def _read_carmen(log: str, cfg: Config) -> tuple[list[LaserRecord], int]:
     return parsed.records, len(parsed.malformed)
 
 
-def _read_ours(log: str, cfg: Config) -> tuple[list[LaserRecord], int]:
-    """The scans of a flight folder or ``laser.raw``, on the flight's time base."""
-    from mkflight.errors import ProtocolError
-    from mkflight.logs.scans import flight_t0_ns, read_scans
-    from mkflight.scanmatch.log_tracking import records_from_scans
+def _read_ours(log: str, cfg: Config) -> tuple[list[LaserRecord], list[FloatArray]]:
+    """The scans of a flight folder or ``laser.raw``, and their points as in flight.
+
+    In a flight folder (the file's own, for a ``laser.raw``) the scans come with the
+    folder's time base and the FC's attitude from ``mk.raw``, and are levelled by it as in
+    flight; a ``laser.raw`` alone is taken as level.
+    """
+    import numpy as np
+
+    from mkflight.errors import ProtocolError, ReplayError
+    from mkflight.logs import load_flight
+    from mkflight.logs.scans import read_scans
+    from mkflight.scanmatch.log_tracking import level_scan_points, records_from_scans
 
     path = Path(log)
-    scans = read_scans(path, flight_t0_ns(path if path.is_dir() else path.parent))
+    folder = path if path.is_dir() else path.parent
+    try:
+        flight = load_flight(folder) if path.is_dir() or path.name == "laser.raw" else None
+    except ReplayError:
+        if path.is_dir():
+            raise
+        flight = None  # a laser.raw outside a flight folder
+    scans = flight.laser_scans if flight is not None else read_scans(path)
+    if scans is None:
+        msg = f"{folder / 'laser.raw'}: no such file (a flight folder's laser recording)"
+        raise ReplayError(msg)
     for warning in scans.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     if not len(scans):
         msg = f"{log}: no scan in the laser recording"
         raise ProtocolError(msg)
+    stamp_s = (scans.stamp_t_ns - scans.t0_ns) / 1e9
+    pitch = roll = np.zeros(len(scans))
+    if flight is not None and len(flight.samples):
+        samples = flight.samples
+        pitch = np.interp(stamp_s, samples["t_s"], samples["pitch_rad"])
+        roll = np.interp(stamp_s, samples["t_s"], samples["roll_rad"])
     records = records_from_scans(
         scans, min_range_m=cfg.laser.min_range_m, max_range_m=cfg.laser.max_range_m
     )
-    return records, 0
+    return records, level_scan_points(scans, pitch, roll, cfg.laser)
 
 
 def add_parser(subparsers: Subparsers) -> None:

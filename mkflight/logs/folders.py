@@ -167,7 +167,7 @@ def note_flight_folder(folder: str | Path, log_dir: str | Path) -> NewFolder:
     number = flight_number(path.name)
     base = Path(log_dir)
     try:
-        ours = number is not None and path.parent.resolve() == base.resolve()
+        ours = number is not None and base.is_dir() and path.parent.resolve() == base.resolve()
     except OSError:
         ours = False
     if not ours or number is None:

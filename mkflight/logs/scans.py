@@ -62,14 +62,12 @@ __all__ = [
     "DecodedScans",
     "ScanLog",
     "decode_scans",
-    "flight_t0_ns",
     "laser_config",
     "read_scans",
     "scan_log",
 ]
 
 LASER_RAW: Final = "laser.raw"
-MK_RAW: Final = "mk.raw"
 _STREAM_COMMANDS: Final = (b"MD", b"MS")
 _F64 = npt.NDArray[np.float64]
 _I64 = npt.NDArray[np.int64]
@@ -309,21 +307,6 @@ def laser_config(config: Mapping[str, Any], path: Path) -> LaserConfig:
     except msgspec.ValidationError as err:
         msg = f"{path}: config.laser: {err}"
         raise ReplayError(msg) from err
-
-
-def flight_t0_ns(folder: str | Path) -> int | None:
-    """A flight folder's ``t0_ns`` as :func:`~mkflight.logs.load_flight` takes it.
-
-    The ``start_t_ns`` of ``mk.raw``, else of ``laser.raw``; None without either.
-
-    Raises:
-        ReplayError: a recording with a broken header.
-    """
-    for name in (MK_RAW, LASER_RAW):
-        path = Path(folder) / name
-        if path.is_file():
-            return read_raw(path).header.start_t_ns
-    return None
 
 
 def read_scans(source: str | Path, t0_ns: int | None = None) -> ScanLog:

@@ -17,9 +17,12 @@ Beams used:
 
 A flight's own ``laser.raw`` (:func:`records_from_scans`) becomes URG records too: each
 scan's beams in step order, stamped with the time its front step was measured, from the
-pose 0 0 0. Its poses are wanted in the flight's frame W (x forward, y right, psi
-clockwise, SPEC §1), the matcher's is the math frame (y left, theta counter-clockwise):
-:func:`poses_in_w` and :func:`odom_in_math` cross between them as the flight's laser
+pose 0 0 0. Its points are made as the flight's laser pipeline made them
+(:func:`level_scan_points`): the scan steps levelled by the attitude at the scan's time
+(the FC's DebugOut from ``mk.raw``) and the floor hits left out by the hat's height, so
+the matcher sees what it saw in flight. Its poses are wanted in the flight's frame W (x
+forward, y right, psi clockwise, SPEC §1), the matcher's is the math frame (y left, theta
+counter-clockwise): :func:`poses_in_w` and :func:`odom_in_math` cross between them as the
 pipeline does (:func:`~mkflight.flight.laser_pipeline.pose_from_math`).
 
 Motion prior: given an odometry trajectory (:mod:`mkflight.scanmatch.trajectory`), the
@@ -42,11 +45,12 @@ import numpy.typing as npt
 
 from mkflight.config import LaserConfig, ScanmatchConfig
 from mkflight.conversions import NS_PER_S
-from mkflight.flight.laser_pipeline import pose_from_math, pose_to_math
+from mkflight.flight.laser_pipeline import level_points, pose_from_math, pose_to_math
 from mkflight.scanmatch.carmen import LaserRecord
 from mkflight.scanmatch.geometry import Pose, between, compose, inverse, scan_to_points
 from mkflight.scanmatch.icp import MatchResult
 from mkflight.scanmatch.keyframe import KeyframeMatcher
+from mkflight.urg.hat import HatSettings, hat_height
 
 if TYPE_CHECKING:
     from mkflight.logs.scans import ScanLog
@@ -140,6 +144,44 @@ def records_from_scans(
     return out
 
 
+def level_scan_points(
+    scans: ScanLog,
+    pitch_rad: npt.NDArray[np.float64],
+    roll_rad: npt.NDArray[np.float64],
+    laser: LaserConfig,
+) -> list[npt.NDArray[np.float64]]:
+    """Each scan's matcher points as the flight's laser pipeline makes them (math frame).
+
+    The scan steps (``laser.scan_steps``) levelled by the scan's pitch and roll
+    (:func:`~mkflight.flight.laser_pipeline.level_points`), the beams that hit the floor
+    left out by the hat's height (eq 26, :func:`~mkflight.urg.hat.hat_height`) plus the
+    hat's offset; ``pitch_rad``/``roll_rad``: (n,) one per scan, NaN = level.
+    """
+    steps = scans.beam_steps[::-1].astype(np.int64)  # step order, as the driver's scan
+    in_scan = (steps >= laser.scan_steps[0]) & (steps <= laser.scan_steps[1])
+    in_hat = (steps >= laser.hat_steps[0]) & (steps <= laser.hat_steps[1])
+    hat_settings = HatSettings.from_config(laser)
+    out: list[npt.NDArray[np.float64]] = []
+    for i in range(len(scans)):
+        ranges = scans.ranges_m[i, ::-1]
+        pitch, roll = float(pitch_rad[i]), float(roll_rad[i])
+        if not (math.isfinite(pitch) and math.isfinite(roll)):
+            pitch = roll = 0.0
+        hat = hat_height(ranges[in_hat], pitch, roll, hat_settings)
+        out.append(
+            level_points(
+                ranges[in_scan],
+                steps[in_scan],
+                pitch,
+                roll,
+                min_range_m=laser.min_range_m,
+                max_range_m=laser.max_range_m,
+                floor_depth_m=hat.height_m + laser.hat_offset_m if hat.valid else None,
+            )
+        )
+    return out
+
+
 def poses_in_w(tracked: Sequence[TrackedScan]) -> list[TrackedScan]:
     """The tracked poses in SPEC §1's W (x forward, y right, psi clockwise in (-pi, pi])."""
     return [
@@ -179,6 +221,7 @@ def track_records(
     odom: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None = None,
     config: ScanmatchConfig | None = None,
     on_scan: Callable[[], None] | None = None,
+    points: Sequence[npt.NDArray[np.float64]] | None = None,
 ) -> list[TrackedScan]:
     """Run the keyframe matcher over the records (pure apart from the clock read for timing).
 
@@ -188,6 +231,8 @@ def track_records(
         odom: ``(t, poses)`` of an odometry trajectory for the motion prior, or None.
         config: the ``scanmatch`` section (ICP tuning, keyframe policy); defaults when None.
         on_scan: called once per scan (progress).
+        points: each record's points to match (math frame, :func:`level_scan_points`)
+            instead of its valid beams; None: the beams.
 
     Returns:
         One :class:`TrackedScan` per record, in the same order.
@@ -210,10 +255,13 @@ def track_records(
     out: list[TrackedScan] = []
     prev_t: float | None = None
     prev_odom = -1
-    for rec in records:
+    for i, rec in enumerate(records):
         t0 = time.perf_counter()
-        mask = beam_mask(rec, scan_steps)
-        pts = scan_to_points(rec.ranges_m[mask], rec.angles_rad[mask], -math.inf, math.inf)
+        if points is not None:
+            pts = points[i]
+        else:
+            mask = beam_mask(rec, scan_steps)
+            pts = scan_to_points(rec.ranges_m[mask], rec.angles_rad[mask], -math.inf, math.inf)
         prior: Pose | None = None
         cur_odom = -1
         if odom is not None:
