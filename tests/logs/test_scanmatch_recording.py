@@ -17,7 +17,12 @@ from mkflight.errors import ReplayError
 from mkflight.logs import load_flight
 from mkflight.logs.scans import read_scans
 from mkflight.logs.schema import PhaseChange
-from mkflight.scanmatch.log_tracking import poses_in_w, records_from_scans, track_records
+from mkflight.scanmatch.log_tracking import (
+    odom_in_math,
+    poses_in_w,
+    records_from_scans,
+    track_records,
+)
 from mkflight.scanmatch.trajectory import read_trajectory
 from mkflight.sim.room import raycast
 from mkflight.sim.world import default_room
@@ -120,6 +125,13 @@ def test_the_output_is_in_w_moving_right_and_turning_clockwise(sim_flight: Path)
     for s, want in zip(tracked, truth_w, strict=True):
         assert s.pose == pytest.approx(want, abs=2e-3)
     assert math.copysign(1.0, tracked[-1].pose[1]) == 1.0  # right is +y
+    # odometry given in W is the prior once turned into the matcher's frame
+    odom_t = np.arange(n, dtype=np.float64) * 0.1
+    odom = odom_in_math((odom_t, np.array(truth_w, dtype=np.float64)))
+    with_odom = poses_in_w(track_records(records, scan_steps=template.scan_steps, odom=odom))
+    assert all(s.used_odom for s in with_odom[1:])
+    for s, want in zip(with_odom, truth_w, strict=True):
+        assert s.pose == pytest.approx(want, abs=2e-3)
 
 
 def test_a_folder_without_laser_raw_is_one_clear_error(sim_flight: Path, tmp_path: Path) -> None:
