@@ -95,8 +95,11 @@ def test_its_laser_raw_gives_the_same_lines_and_alone_a_level_track(
     shutil.copy(sim_flight / "laser.raw", alone)
     t, poses = _scanmatch(alone, tmp_path / "b.txt")
     assert len(t) == len(read_scans(sim_flight))
-    assert t[0] == pytest.approx(read_scans(alone).t_s[0] - 0.1, abs=0.1)
-    assert np.abs(poses[:, :2]).max() < 0.2  # a hover about the origin
+    read_s = read_scans(alone).t_s
+    assert (t < read_s).all()  # the front step's time, before the reply was read
+    assert (read_s - t < 0.5).all()
+    # a hover about the origin (unlevelled: a touchdown's tilted scan may jump)
+    assert np.median(np.abs(poses[:, :2])) < 0.02
 
 
 def test_the_output_is_in_w_moving_right_and_turning_clockwise(sim_flight: Path) -> None:
