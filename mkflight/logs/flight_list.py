@@ -123,10 +123,16 @@ FIELDS: Final = tuple(f.name for f in fields(FlightRecord))
 
 
 def is_flight_folder(path: Path) -> bool:
-    """A real directory (not a symlink) holding one of :data:`FLIGHT_FILES`."""
+    """A real directory (not a symlink) holding one of :data:`FLIGHT_FILES`.
+
+    A directory that cannot be looked into counts (it is listed as unreadable).
+    """
     if path.is_symlink() or not path.is_dir():
         return False
-    return any((path / name).is_file() for name in FLIGHT_FILES)
+    try:
+        return any((path / name).is_file() for name in FLIGHT_FILES)
+    except OSError:
+        return True
 
 
 def _finite(value: float | None) -> float | None:
@@ -226,8 +232,22 @@ def flight_record(folder: Path, *, truth: bool = True) -> FlightRecord:
     """The record of one flight folder; never raises for what the folder holds.
 
     ``truth``: measure the precision against a ``truth.txt`` beside a daemon's flight
-    (reads ``events.jsonl`` whole).
+    (reads ``events.jsonl`` whole). A folder that cannot be read is "unreadable", with
+    the error.
     """
+    try:
+        return _record(folder, truth=truth)
+    except OSError as err:
+        return FlightRecord(
+            number=flight_number(folder.name),
+            folder=folder.name,
+            path=str(folder),
+            status="unreadable",
+            error=f"{folder}: {err.strerror or err}",
+        )
+
+
+def _record(folder: Path, *, truth: bool) -> FlightRecord:
     base: dict[str, Any] = {
         "number": flight_number(folder.name),
         "folder": folder.name,
