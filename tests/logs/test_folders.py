@@ -165,6 +165,12 @@ def test_a_chosen_folder_moves_latest_only_when_it_is_the_newest_numbered_one(
     chosen = note_flight_folder(base / "0002-20261126-1200", base)
     assert chosen.latest_updated
     assert os.readlink(base / LATEST) == "0002-20261126-1200"
+    # a logging.dir not made yet is not made by noting a folder in it
+    missing = tmp_path / "not-yet"
+    noted = note_flight_folder(missing / "0001-20261126-1057", missing)
+    assert not noted.latest_updated
+    assert noted.latest_problem is None
+    assert not missing.exists()
 
 
 def test_a_planted_lock_symlink_is_refused(tmp_path: Path) -> None:
