@@ -21,6 +21,7 @@ from mkflight.commands import (
     config_cmd,
     export,
     flight_time,
+    flights,
     fly,
     laser_scan,
     mk_info,
@@ -60,6 +61,7 @@ GROUPS: tuple[Callable[[Subparsers], None], ...] = (
     export.add_parser,
     report.add_parser,
     config_cmd.add_parser,
+    flights.add_parser,
 )
 
 

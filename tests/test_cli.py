@@ -76,6 +76,7 @@ def test_every_command_of_the_tree_is_there() -> None:
         "config show",
         "config check",
         "mk release",
+        "flights",
     }
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import sys
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -18,20 +17,28 @@ if TYPE_CHECKING:
 
 
 def _folder(cfg: Config, log_dir: str | None) -> Path:
-    """The flight folder: new or empty (a simulator's ``truth.txt`` may be there already).
+    """The flight folder: a new numbered one in ``logging.dir``, or ``--log-dir``.
 
-    Under ``logging.dir`` its name is made of digits only, so it stays there. Every file
-    in it is then created, never opened if it exists (nor through a symlink planted in
-    the folder): :class:`~mkflight.flight.flight_logs.FlightLogs`.
+    The new one is made at once (:func:`~mkflight.logs.folders.create_flight_folder`,
+    ``latest`` pointed at it); its name is made of digits and dashes only, so it stays
+    there. ``--log-dir`` must be new or empty (a simulator's ``truth.txt`` may be there
+    already); ``latest`` follows it only if it is the newest numbered folder in
+    ``logging.dir`` (:func:`~mkflight.logs.folders.note_flight_folder`). Every file in it
+    is then created, never opened if it exists (nor through a symlink planted in the
+    folder): :class:`~mkflight.flight.flight_logs.FlightLogs`.
 
     Raises:
         ConfigError: the path is not a folder (a file, a dangling symlink), cannot be
-            listed, or holds something.
+            made or listed, or holds something; ``logging.dir`` cannot be made.
     """
     from mkflight.flight.flight_logs import folder_in_use
+    from mkflight.logs.folders import create_flight_folder, note_flight_folder
 
-    stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
-    folder = Path(log_dir) if log_dir else Path(cfg.logging.dir) / f"flight-{stamp}"
+    if log_dir is None:
+        made = create_flight_folder(cfg.logging.dir)
+        _warn_latest(made.latest_problem)
+        return made.path
+    folder = Path(log_dir)
     if os.path.lexists(folder) and not folder.is_dir():
         msg = f"log dir {str(folder)!r} is not a folder"
         raise ConfigError(msg)
@@ -43,7 +50,14 @@ def _folder(cfg: Config, log_dir: str | None) -> Path:
     if in_use:
         msg = f"log dir {str(folder)!r} is not empty: a flight folder is never overwritten"
         raise ConfigError(msg)
+    _warn_latest(note_flight_folder(folder, cfg.logging.dir).latest_problem)
     return folder
+
+
+def _warn_latest(problem: str | None) -> None:
+    """One ``warning:`` line on stderr when ``latest`` could not follow the new flight."""
+    if problem is not None:
+        print(f"warning: {problem}", file=sys.stderr)
 
 
 def _truth_precision(folder: Path) -> dict[str, float | int] | None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -48,11 +47,7 @@ def cmd_sim_hover(
     if not 0.0 <= excite_m <= MAX_HOLD_OFFSET_M:
         msg = f"--excite must be within 0..{MAX_HOLD_OFFSET_M} m, got {excite_m}"
         raise ConfigError(msg)
-    stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
-    folder = Path(log_dir) if log_dir else Path(cfg.logging.dir) / f"sim-hover-{stamp}"
-    if folder.exists() and any(folder.iterdir()):
-        msg = f"log dir {str(folder)!r} is not empty: a flight folder is never overwritten"
-        raise ConfigError(msg)
+    folder = _folder(cfg.logging.dir, log_dir)
     seed_used = cfg.sim.seed if seed is None else seed
     result = run_hover(
         cfg,
@@ -85,6 +80,31 @@ def cmd_sim_hover(
     laser = "ray-cast scans, real scan matcher" if result.scans else "true pose + noise"
     print(f"airframe {kind}{which}; flight seed {seed_used}; laser: {laser}")
     return 0
+
+
+def _folder(logging_dir: str, log_dir: str | None) -> Path:
+    """A new numbered folder in ``logging.dir`` (as ``fly``'s), or ``--log-dir`` if empty.
+
+    ``latest`` follows the numbered folders (:mod:`mkflight.logs.folders`).
+
+    Raises:
+        ConfigError: ``--log-dir`` is not empty, or no folder can be made.
+    """
+    import sys
+
+    from mkflight.logs.folders import create_flight_folder, note_flight_folder
+
+    if log_dir is None:
+        made = create_flight_folder(logging_dir)
+    else:
+        folder = Path(log_dir)
+        if folder.exists() and any(folder.iterdir()):
+            msg = f"log dir {str(folder)!r} is not empty: a flight folder is never overwritten"
+            raise ConfigError(msg)
+        made = note_flight_folder(folder, logging_dir)
+    if made.latest_problem is not None:
+        print(f"warning: {made.latest_problem}", file=sys.stderr)
+    return made.path
 
 
 def add_parser(sim_commands: Subparsers) -> None:
@@ -123,7 +143,9 @@ def add_parser(sim_commands: Subparsers) -> None:
     hover.add_argument(
         "--height", dest="height_m", type=float, metavar="M", help="hover height (default 0.6)"
     )
-    hover.add_argument("--log-dir", metavar="DIR", help="flight folder (default: new, dated)")
+    hover.add_argument(
+        "--log-dir", metavar="DIR", help="flight folder (default: new, numbered, in logging.dir)"
+    )
     hover.add_argument(
         "--excite",
         dest="excite_m",

@@ -11,6 +11,8 @@
   with named columns, for your own analysis.
 * :mod:`~mkflight.logs.scans` -- :func:`read_scans`: every scan of ``laser.raw``, decoded
   as the driver decoded it, with its scan event's pose.
+* :mod:`~mkflight.logs.folders` -- numbered flight folders (``0042-20261126-1057``) and
+  the ``latest`` link; :mod:`~mkflight.logs.flight_list` -- ``mkflight flights``' records.
 
 Writers create their file in a flight folder and flush every row; readers raise
 :class:`mkflight.errors.ReplayError` naming the file and line, and drop (and report) a

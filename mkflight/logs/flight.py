@@ -324,7 +324,10 @@ def _laser_scans(
     """The scans of ``laser.raw`` with their events' poses, stamped with the laser config flown."""
     if rec is None:
         return None
-    laser = None if info is None else laser_config(info.config, path / flight_json.FILE_NAME)
+    laser = None
+    if info is not None:
+        laser, problem = laser_config(info.config, path / flight_json.FILE_NAME)
+        warnings.extend([problem] if problem else [])
     scans = scan_log(rec, events, laser, t0_ns)
     warnings.extend(scans.warnings)
     return scans

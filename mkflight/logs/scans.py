@@ -295,18 +295,18 @@ def scan_log(
     )
 
 
-def laser_config(config: Mapping[str, Any], path: Path) -> LaserConfig:
+def laser_config(config: Mapping[str, Any], path: Path) -> tuple[LaserConfig, str | None]:
     """The ``laser`` section of a flight's config (``flight.json``), defaults for the rest.
 
-    Raises:
-        ReplayError: the section does not fit :class:`~mkflight.config.LaserConfig`.
+    A section that does not fit :class:`~mkflight.config.LaserConfig` (another version's,
+    a damaged file) gives the defaults and a warning naming the file: the scans decode
+    the same, only their stamps may move by a changed ``transport_delay_s``.
     """
     section = config.get("laser", {})
     try:
-        return msgspec.convert(section, type=LaserConfig)
+        return msgspec.convert(section, type=LaserConfig), None
     except msgspec.ValidationError as err:
-        msg = f"{path}: config.laser: {err}"
-        raise ReplayError(msg) from err
+        return LaserConfig(), f"{path}: config.laser: {err}: the defaults used for the scans"
 
 
 def read_scans(source: str | Path, t0_ns: int | None = None) -> ScanLog:
@@ -331,7 +331,8 @@ def read_scans(source: str | Path, t0_ns: int | None = None) -> ScanLog:
     laser = None
     info_path = folder / flight_json.FILE_NAME
     if info_path.is_file():
-        laser = laser_config(flight_json.read_flight_json(info_path).config, info_path)
+        laser, problem = laser_config(flight_json.read_flight_json(info_path).config, info_path)
+        warnings.extend([problem] if problem else [])
     events: list[Event] = []
     events_path = folder / events_log.FILE_NAME
     if events_path.is_file():

@@ -1,4 +1,4 @@
-"""The keyframe matcher over a recorded CARMEN log: one pose per laser record.
+"""The keyframe matcher over a recorded laser log: one pose per laser record.
 
 :func:`track_records` runs :class:`~mkflight.scanmatch.keyframe.KeyframeMatcher` over a
 log's records in file order and gives each scan's pose in the log's own frame: x forward,
@@ -15,6 +15,16 @@ Beams used:
 * Any other log (SICK ``FLASER``: 180 or 360 beams over 180 degrees) uses all valid
   beams, with the shortest line windows (``min_line_length_m`` 0: sparse beams).
 
+A flight's own ``laser.raw`` (:func:`records_from_scans`) becomes URG records too: each
+scan's beams in step order, stamped with the time its front step was measured, from the
+pose 0 0 0. Its points are made as the flight's laser pipeline made them
+(:func:`level_scan_points`): the scan steps levelled by the attitude at the scan's time
+(the FC's DebugOut from ``mk.raw``) and the floor hits left out by the hat's height, so
+the matcher sees what it saw in flight. Its poses are wanted in the flight's frame W (x
+forward, y right, psi clockwise, SPEC §1), the matcher's is the math frame (y left, theta
+counter-clockwise): :func:`poses_in_w` and :func:`odom_in_math` cross between them as the
+pipeline does (:func:`~mkflight.flight.laser_pipeline.pose_from_math`).
+
 Motion prior: given an odometry trajectory (:mod:`mkflight.scanmatch.trajectory`), the
 increment ``odom(t_prev)^-1 (+) odom(t)`` between consecutive scans' timestamps is the
 prior, each time matched to the nearest odometry sample within 1 ms; a scan without such
@@ -28,15 +38,22 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Final
 
 import numpy as np
 import numpy.typing as npt
 
 from mkflight.config import LaserConfig, ScanmatchConfig
+from mkflight.conversions import NS_PER_S
+from mkflight.flight.laser_pipeline import level_points, pose_from_math, pose_to_math
 from mkflight.scanmatch.carmen import LaserRecord
 from mkflight.scanmatch.geometry import Pose, between, compose, inverse, scan_to_points
 from mkflight.scanmatch.icp import MatchResult
 from mkflight.scanmatch.keyframe import KeyframeMatcher
+from mkflight.urg.hat import HatSettings, hat_height
+
+if TYPE_CHECKING:
+    from mkflight.logs.scans import ScanLog
 
 #: URG-04LX geometry (SPEC §2): 1024 steps per turn, step 384 straight ahead.
 URG_STEP_RAD = 2.0 * math.pi / 1024.0
@@ -46,6 +63,9 @@ ODOM_TOLERANCE_S = 1e-3
 #: Line-fit chord for URG logs and for other (sparser) lasers.
 URG_MIN_LINE_LENGTH_M = 0.12
 SPARSE_MIN_LINE_LENGTH_M = 0.0
+#: The ``kind`` of the records of a flight's ``laser.raw`` (:func:`records_from_scans`).
+RAW_KIND: Final = "laser.raw"
+_URG_KINDS: Final = frozenset(("ROBOTLASER1", RAW_KIND))
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,7 +90,7 @@ class TrackedScan:
 
 def urg_first_step(record: LaserRecord) -> int | None:
     """The URG step of beam 0 when the record's beams are URG steps, else None."""
-    if record.kind != "ROBOTLASER1" or record.angles_rad.shape[0] < 2:
+    if record.kind not in _URG_KINDS or record.angles_rad.shape[0] < 2:
         return None
     res = float(record.angles_rad[1] - record.angles_rad[0])
     if abs(res - URG_STEP_RAD) > 1e-5:
@@ -89,6 +109,94 @@ def beam_mask(record: LaserRecord, scan_steps: tuple[int, int]) -> npt.NDArray[n
         steps = first + np.arange(mask.shape[0])
         mask &= (steps >= scan_steps[0]) & (steps <= scan_steps[1])
     return mask
+
+
+def records_from_scans(
+    scans: ScanLog, *, min_range_m: float, max_range_m: float
+) -> list[LaserRecord]:
+    """One URG record per scan of a flight's ``laser.raw`` (:class:`~mkflight.logs.scans.ScanLog`).
+
+    Beams in step order at ``(s - 384) * 2*pi/1024`` counter-clockwise (the log's math
+    frame); valid: finite and ``min_range_m <= r < max_range_m``; ``t_s``: when the
+    front step was measured (the ``scan`` event's time), on the log's ``t0_ns``; the
+    pose 0 0 0.
+    """
+    angles = -scans.angles_rad[::-1]
+    zero = (0.0, 0.0, 0.0)
+    out: list[LaserRecord] = []
+    for i, stamp_ns in enumerate(scans.stamp_t_ns.tolist()):
+        ranges = scans.ranges_m[i, ::-1]
+        with np.errstate(invalid="ignore"):
+            valid = np.isfinite(ranges) & (ranges >= min_range_m) & (ranges < max_range_m)
+        out.append(
+            LaserRecord(
+                kind=RAW_KIND,
+                line_no=i + 1,
+                t_s=(stamp_ns - scans.t0_ns) / NS_PER_S,
+                angles_rad=angles,
+                ranges_m=ranges,
+                valid=valid,
+                max_range_m=max_range_m,
+                laser_pose=zero,
+                robot_pose=zero,
+            )
+        )
+    return out
+
+
+def level_scan_points(
+    scans: ScanLog,
+    pitch_rad: npt.NDArray[np.float64],
+    roll_rad: npt.NDArray[np.float64],
+    laser: LaserConfig,
+) -> list[npt.NDArray[np.float64]]:
+    """Each scan's matcher points as the flight's laser pipeline makes them (math frame).
+
+    The scan steps (``laser.scan_steps``) levelled by the scan's pitch and roll
+    (:func:`~mkflight.flight.laser_pipeline.level_points`), the beams that hit the floor
+    left out by the hat's height (eq 26, :func:`~mkflight.urg.hat.hat_height`) plus the
+    hat's offset; ``pitch_rad``/``roll_rad``: (n,) one per scan, NaN = level.
+    """
+    steps = scans.beam_steps[::-1].astype(np.int64)  # step order, as the driver's scan
+    in_scan = (steps >= laser.scan_steps[0]) & (steps <= laser.scan_steps[1])
+    in_hat = (steps >= laser.hat_steps[0]) & (steps <= laser.hat_steps[1])
+    hat_settings = HatSettings.from_config(laser)
+    out: list[npt.NDArray[np.float64]] = []
+    for i in range(len(scans)):
+        ranges = scans.ranges_m[i, ::-1]
+        pitch, roll = float(pitch_rad[i]), float(roll_rad[i])
+        if not (math.isfinite(pitch) and math.isfinite(roll)):
+            pitch = roll = 0.0
+        hat = hat_height(ranges[in_hat], pitch, roll, hat_settings)
+        out.append(
+            level_points(
+                ranges[in_scan],
+                steps[in_scan],
+                pitch,
+                roll,
+                min_range_m=laser.min_range_m,
+                max_range_m=laser.max_range_m,
+                floor_depth_m=hat.height_m + laser.hat_offset_m if hat.valid else None,
+            )
+        )
+    return out
+
+
+def poses_in_w(tracked: Sequence[TrackedScan]) -> list[TrackedScan]:
+    """The tracked poses in SPEC §1's W (x forward, y right, psi clockwise in (-pi, pi])."""
+    return [
+        TrackedScan(s.t_s, pose_from_math(s.pose), s.result, s.elapsed_s, s.used_odom)
+        for s in tracked
+    ]
+
+
+def odom_in_math(
+    odom: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]],
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """A ``t x y theta`` odometry given in W, as the matcher's math frame (y and angle flip)."""
+    t, poses = odom
+    flipped = np.array([pose_to_math((p[0], p[1], p[2])) for p in poses.tolist()])
+    return t, flipped.reshape(-1, 3)
 
 
 def _lookup(ts: npt.NDArray[np.float64], t: float) -> int:
@@ -113,6 +221,7 @@ def track_records(
     odom: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None = None,
     config: ScanmatchConfig | None = None,
     on_scan: Callable[[], None] | None = None,
+    points: Sequence[npt.NDArray[np.float64]] | None = None,
 ) -> list[TrackedScan]:
     """Run the keyframe matcher over the records (pure apart from the clock read for timing).
 
@@ -122,6 +231,8 @@ def track_records(
         odom: ``(t, poses)`` of an odometry trajectory for the motion prior, or None.
         config: the ``scanmatch`` section (ICP tuning, keyframe policy); defaults when None.
         on_scan: called once per scan (progress).
+        points: each record's points to match (math frame, :func:`level_scan_points`)
+            instead of its valid beams; None: the beams.
 
     Returns:
         One :class:`TrackedScan` per record, in the same order.
@@ -144,10 +255,13 @@ def track_records(
     out: list[TrackedScan] = []
     prev_t: float | None = None
     prev_odom = -1
-    for rec in records:
+    for i, rec in enumerate(records):
         t0 = time.perf_counter()
-        mask = beam_mask(rec, scan_steps)
-        pts = scan_to_points(rec.ranges_m[mask], rec.angles_rad[mask], -math.inf, math.inf)
+        if points is not None:
+            pts = points[i]
+        else:
+            mask = beam_mask(rec, scan_steps)
+            pts = scan_to_points(rec.ranges_m[mask], rec.angles_rad[mask], -math.inf, math.inf)
         prior: Pose | None = None
         cur_odom = -1
         if odom is not None:

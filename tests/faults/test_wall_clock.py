@@ -42,11 +42,10 @@ WALL_CLOCK: Final = {
 """(the name before the dot, the attribute) of every wall-clock read we look for."""
 
 STAMP_SITES: Final = {
-    ("mkflight/commands/fly.py", "_folder"): "the flight folder's name",
-    ("mkflight/commands/sim_hover.py", "cmd_sim_hover"): "the sim hover folder's name",
     ("mkflight/commands/tune.py", "cmd_tune"): "the tuned config's header date",
     ("mkflight/eventlog.py", "configure_events"): "log lines' timestamps (labels)",
     ("mkflight/flight/flight_logs.py", "FlightLogs.__init__"): "flight.json start_utc",
+    ("mkflight/logs/folders.py", "create_flight_folder"): "a flight folder's name (fly, sim)",
     ("mkflight/logs/raw.py", "RawRecorder.__init__"): "a raw recording header's start",
     ("mkflight/sim/hover_flight.py", "FlightSide.__init__"): "sim hover's flight.json start",
 }

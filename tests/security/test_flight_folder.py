@@ -116,8 +116,9 @@ def test_a_folder_made_under_logging_dir_stays_there(tmp_path: Path) -> None:
     cfg = load_config(None, [f"logging.dir={tmp_path / 'flights'}"])
     folder = _folder(cfg, None)
     assert folder.parent == Path(cfg.logging.dir)
-    assert re.fullmatch(r"flight-\d{8}-\d{6}", folder.name)  # no '/', no '..'
-    assert not folder.exists()  # made by the flight's logs, fresh
+    assert re.fullmatch(r"\d{4,}-\d{8}-\d{4}", folder.name)  # no '/', no '..'
+    assert folder.is_dir()  # made new (mkdir), so empty: nothing planted in it
+    assert not any(folder.iterdir())
 
 
 @pytest.mark.parametrize("name", FOLDER_FILES)
