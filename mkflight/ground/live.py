@@ -64,6 +64,12 @@ RATE_SLACK: Final = 0.9
 (the DebugOut's and the scans' own jitter must not halve the rate)."""
 
 
+STEP_RATE_HZ: Final = 20.0
+"""The step values' own rate, at most (a DebugOut every 50 ms; the FC's is ≈ 53 ms)."""
+SCAN_RATE_HZ: Final = 10.0
+"""The scans' own rate (the URG-04LX scans every 100 ms)."""
+
+
 class _Channel(Protocol):
     """What the publisher uses of a Foxglove channel."""
 
@@ -98,9 +104,12 @@ def _put(channel: _Channel, t_ns: int, build: Callable[[], Any]) -> None:
         channel.log(build(), log_time=t_ns)
 
 
-def period_ns(rate_hz: float) -> int:
-    """The shortest interval between two published values at ``rate_hz``, with slack."""
-    return int(RATE_SLACK * NS_PER_S / rate_hz)
+def period_ns(rate_hz: float, own_rate_hz: float) -> int:
+    """The shortest interval between two published values at ``rate_hz``, with slack.
+
+    0 at the values' own rate (or above): every one is published, however it jitters.
+    """
+    return 0 if rate_hz >= own_rate_hz else int(RATE_SLACK * NS_PER_S / rate_hz)
 
 
 class LivePublisher:
@@ -112,8 +121,8 @@ class LivePublisher:
         self.feed = feed
         self._ch = channels
         self._scan_steps = scan_steps
-        self._state_period_ns = period_ns(cfg.state_rate_hz)
-        self._scan_period_ns = period_ns(cfg.scan_rate_hz)
+        self._state_period_ns = period_ns(cfg.state_rate_hz, STEP_RATE_HZ)
+        self._scan_period_ns = period_ns(cfg.scan_rate_hz, SCAN_RATE_HZ)
         self._state_ns: int | None = None  # the last published step's time
         self._scan_ns: int | None = None
         self.rounds = 0  #: wake-ups that published
@@ -188,7 +197,7 @@ class LivePublisher:
 
 def _due(t_ns: int, last_ns: int | None, period: int) -> bool:
     """Whether a value at ``t_ns`` is due, the last one published at ``last_ns``."""
-    return last_ns is None or t_ns - last_ns >= period or t_ns < last_ns
+    return last_ns is None or t_ns < last_ns or t_ns - last_ns >= max(period, 1)
 
 
 class LiveView:

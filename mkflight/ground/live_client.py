@@ -179,3 +179,32 @@ def decode_laser_scan(payload: bytes) -> DecodedScan:
         end_angle=float(_number(f, 5)),
         ranges=ranges,
     )
+
+
+def numbers(data: bytes, count: int) -> tuple[float, ...]:
+    """Fields 1..``count`` of a message of doubles (a Vector3, a Quaternion); absent: 0."""
+    f = protobuf_fields(data)
+    return tuple(float(_number(f, k)) for k in range(1, count + 1))
+
+
+@dataclass(frozen=True, slots=True)
+class DecodedPose:
+    """A ``foxglove.PoseInFrame``: 1 timestamp, 2 frame_id, 3 pose (1 position, 2 orientation)."""
+
+    stamp_ns: int
+    frame_id: str
+    position: tuple[float, ...]  #: x, y, z
+    orientation: tuple[float, ...]  #: x, y, z, w
+
+
+def decode_pose_in_frame(payload: bytes) -> DecodedPose:
+    """A ``foxglove.PoseInFrame`` payload, decoded."""
+    f = protobuf_fields(payload)
+    ts = protobuf_fields(_bytes(f, 1))
+    pose = protobuf_fields(_bytes(f, 3))
+    return DecodedPose(
+        stamp_ns=int(_number(ts, 1)) * NS_PER_S + int(_number(ts, 2)),
+        frame_id=_bytes(f, 2).decode(),
+        position=numbers(_bytes(pose, 1), 3),
+        orientation=numbers(_bytes(pose, 2), 4),
+    )
