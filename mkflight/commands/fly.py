@@ -143,9 +143,13 @@ def _start_live(cfg: Config, address: LiveAddress) -> LiveView:
     """The live view's server, listening before anything flies; its URL on stderr.
 
     Raises:
-        ConfigError: the address cannot be listened on.
+        ConfigError: the address cannot be listened on, or the Foxglove SDK is missing.
     """
-    from mkflight.ground.live import start_live_view
+    try:
+        from mkflight.ground.live import start_live_view
+    except ModuleNotFoundError as err:
+        msg = f"--live needs the Foxglove SDK ({err.name}): pip install 'mkflight[live]'"
+        raise ConfigError(msg) from err
 
     view = start_live_view(cfg, address)
     print(f"live view: {view.address.url()} (Foxglove: Open connection)", file=sys.stderr)

@@ -125,7 +125,7 @@ class LivePublisher:
         self._scan_period_ns = period_ns(cfg.scan_rate_hz, SCAN_RATE_HZ)
         self._state_ns: int | None = None  # the last published step's time
         self._scan_ns: int | None = None
-        self.rounds = 0  #: wake-ups that published
+        self.rounds = 0  #: wake-ups so far
         self.error: BaseException | None = None  #: what stopped it (None: nothing)
 
     async def run(self) -> None:

@@ -339,6 +339,21 @@ def test_a_port_in_use_is_one_clear_error_before_anything_flies(tmp_path: Path) 
     assert not (tmp_path / "f").exists()  # the simulator never started
 
 
+def test_without_the_foxglove_sdk_live_is_one_clear_error(tmp_path: Path) -> None:
+    code = (
+        "import sys; sys.modules['foxglove'] = None; from mkflight.cli import main; "
+        f"sys.exit(main(['fly', '--hover', '--sim', '--log-dir', {str(tmp_path / 'f')!r}, "
+        "'--live']))"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=False, timeout=60
+    )
+    assert proc.returncode == 2
+    assert proc.stderr == (
+        "error: --live needs the Foxglove SDK (foxglove): pip install 'mkflight[live]'\n"
+    )
+
+
 def test_parse_live_address() -> None:
     assert parse_live_address("8765") == LiveAddress("127.0.0.1", 8765)
     assert parse_live_address("0.0.0.0:9000") == LiveAddress("0.0.0.0", 9000)
