@@ -354,6 +354,15 @@ def test_without_the_foxglove_sdk_live_is_one_clear_error(tmp_path: Path) -> Non
     )
 
 
+def test_a_flight_without_live_never_imports_the_sdk() -> None:
+    code = (
+        "import sys; import mkflight.flight.app, mkflight.commands.fly, mkflight.ground.live_feed;"
+        " print(sorted(m for m in sys.modules if m.split('.')[0] in ('foxglove', 'websockets')))"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert proc.stdout.strip() == "[]"
+
+
 def test_parse_live_address() -> None:
     assert parse_live_address("8765") == LiveAddress("127.0.0.1", 8765)
     assert parse_live_address("0.0.0.0:9000") == LiveAddress("0.0.0.0", 9000)
