@@ -43,9 +43,9 @@ RequestStop = Callable[[StopRequest, str], None]
 class MkStep:
     """The shell around :meth:`FlightCore.imu_step` (see the module docstring).
 
-    ``observer`` is told of every step last (the live view); ``on_step`` sees every step's
-    output; ``sample_filter`` may change each DebugOut
-    sample before the step (the fault-injection seam of the tests: NaN, a crash).
+    ``observer`` is told of every step, last (the live view); ``on_step`` sees every
+    step's output; ``sample_filter`` may change each DebugOut sample before the step (the
+    fault-injection seam of the tests: NaN, a crash).
     """
 
     def __init__(
