@@ -571,3 +571,58 @@ async def test_the_server_listens_on_loopback_and_says_which_port() -> None:
         await ws.close()
     finally:
         view.close()
+
+
+# ----- a publishing fault in a real flight -------------------------------------------------
+
+
+class FailsInHold(FakeChannel):
+    """Logs until the flight has been in HOLD for a while, then raises."""
+
+    def __init__(self, feed: LiveFeed) -> None:
+        super().__init__()
+        self.feed = feed
+        self.hold_logs = 0
+
+    def log(self, message: Any, *, log_time: int | None = None) -> None:
+        out = self.feed.out
+        if out is not None and out.phase is Phase.HOLD:
+            self.hold_logs += 1
+            if self.hold_logs > 20:
+                raise RuntimeError("injected fault in the live view")
+        super().log(message, log_time=log_time)
+
+
+async def test_a_view_that_fails_in_hold_leaves_the_flight_as_it_was(tmp_path: Path) -> None:
+    from mkflight.flight.app import FlightApp, FlightOptions
+    from mkflight.sim.live import LiveSim
+
+    cfg = Config()
+    folder = tmp_path / "flight"
+    folder.mkdir()
+    feed = LiveFeed()
+    ch = _fake_channels()
+    ch.pose = pose = FailsInHold(feed)
+    publisher = LivePublisher(feed, ch, cfg.live, cfg.laser.scan_steps)
+    view = LiveView(None, None, publisher, DEFAULT_LIVE)
+    sim = LiveSim(cfg, seed=3)
+    mk, laser = await sim.start()
+    try:
+        app = FlightApp(
+            cfg,
+            FlightOptions(mk_port=mk, laser_port=laser, log_dir=folder, duration_s=8.0),
+            observer=feed,
+        )
+        report = await view.during(app.fly())
+    finally:
+        await sim.stop()
+    assert isinstance(publisher.error, RuntimeError)  # the view failed in HOLD ...
+    assert not feed.on
+    assert report.exit_code == 0, report.reason  # ... and the flight flew on and landed
+    assert report.reason == "--duration 8 s"
+    assert report.summary.final_phase == "RELEASED"
+    events = _events(folder)
+    fault_t = max(t for t, _ in pose.logged if t is not None)
+    steps_after = [e for e in events if isinstance(e, Step) and e.t_ns > fault_t]
+    assert len(steps_after) > 40  # two seconds and more of steps after the fault
+    assert [e.to for e in events if isinstance(e, PhaseChange)][-1] == "RELEASED"
