@@ -234,6 +234,22 @@ class LoggingConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_
     dir: str = "flights"
 
 
+class LiveConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """The live view's rates (``fly --live``): each kind at its own rate, or these lower ones.
+
+    The step's values come every DebugOut (≈ 19 Hz), the scans every 100 ms; a lower rate
+    here publishes only the newest value once per its period. Phase changes and failsafe
+    events are always published.
+    """
+
+    state_rate_hz: Annotated[float, Meta(gt=0, le=20)] = 20.0
+    """Pose, set-point, frame transforms, height, attitude, velocity, command, battery."""
+    scan_rate_hz: Annotated[float, Meta(gt=0, le=10)] = 10.0
+    """The laser scan (``/scan``)."""
+    backlog_messages: Annotated[int, Meta(ge=1, le=10000)] = 64
+    """Messages queued per client; a slow client loses the oldest beyond this."""
+
+
 class SimFcConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """The FlightCtrl emulator's settings (``mk-serial.md`` §5-7)."""
 
@@ -375,6 +391,7 @@ class Config(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
     control: ControlConfig = msgspec.field(default_factory=ControlConfig)
     safety: SafetyConfig = msgspec.field(default_factory=SafetyConfig)
     logging: LoggingConfig = msgspec.field(default_factory=LoggingConfig)
+    live: LiveConfig = msgspec.field(default_factory=LiveConfig)
     sim: SimConfig = msgspec.field(default_factory=SimConfig)
 
 

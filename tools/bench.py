@@ -18,7 +18,8 @@ Run: ``pip install -e '.[bench]' && python tools/bench.py`` (``--json`` for mach
 * ``flight``: two real-time simulated flights of ``--flight-duration`` s (default 600): the
   daemon's latency with ICP running, step timing, missed steps, CPU and precision, with the
   matcher in its own process against the same flight with ICP on the loop
-  (``tools/bench_flight.py``).
+  (``tools/bench_flight.py``); with ``--live``, instead, the live view's cost: pairs of
+  flights with ``fly --live`` off and on, a client subscribed to every topic.
 """
 
 from __future__ import annotations
@@ -308,6 +309,13 @@ def main() -> int:
         metavar="S",
         help="the 'flight' group's baseline flight (ICP inline; default: --flight-duration)",
     )
+    parser.add_argument(
+        "--live",
+        action="store_true",
+        help="the 'flight' group measures fly --live instead: off and on alternated in pairs "
+        "of --flight-duration (give it, e.g. 120) with a client subscribed to every topic",
+    )
+    parser.add_argument("--live-pairs", type=int, default=3, help="--live: pairs of flights")
     parser.add_argument("--samples", type=int, default=400, help="latency samples per variant")
     parser.add_argument("--rounds", type=int, default=3, help="alternating rounds per variant")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -354,7 +362,10 @@ def main() -> int:
     if args.only in (None, "flight"):
         import bench_flight  # tools/bench_flight.py, beside this file
 
-        result["flight"] = bench_flight.run(args.flight_duration, args.baseline_duration)
+        if args.live:
+            result["flight_live"] = bench_flight.run_live(args.flight_duration, args.live_pairs)
+        else:
+            result["flight"] = bench_flight.run(args.flight_duration, args.baseline_duration)
     if args.only in (None, "replay"):
         import bench_replay  # tools/bench_replay.py, beside this file
 
@@ -400,6 +411,10 @@ def main() -> int:
         import bench_flight
 
         print(bench_flight.format_table(result["flight"]))
+    if "flight_live" in result:
+        import bench_flight
+
+        print(bench_flight.format_live_table(result["flight_live"]))
     if "replay" in result:
         r = result["replay"]
         print(f"replay of {r['source']} ({r['fast']['recorded_s']:.0f} s recorded):")

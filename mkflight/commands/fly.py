@@ -10,9 +10,11 @@ from typing import TYPE_CHECKING
 
 from mkflight.commands.args import Command, Subparsers, add_json, add_ports, config_options
 from mkflight.errors import ConfigError, FlightError, MkflightError, PortNotFoundError
+from mkflight.ground.live_address import DEFAULT_LIVE, LiveAddress, parse_live_address
 
 if TYPE_CHECKING:
     from mkflight.config import Config, ConfigSource
+    from mkflight.ground.live import LiveView
     from mkflight.logs.schema import FlightSummary
 
 
@@ -116,6 +118,7 @@ async def _fly(
     config_path: str | None,
     overrides: list[str],
     config_source: ConfigSource | None,
+    live: LiveView | None,
 ) -> tuple[int, str, FlightSummary]:
     from mkflight.flight.app import FlightApp, FlightOptions
     from mkflight.flight.flight_logs import TRUTH_FILE
@@ -143,12 +146,30 @@ async def _fly(
                 status_tty=sys.stderr.isatty(),
                 config_source=config_source,
             ),
+            observer=None if live is None else live.feed,
         )
-        report = await app.fly()
+        report = await (app.fly() if live is None else live.during(app.fly()))
     finally:
         if child is not None:
             await child.stop()
     return report.exit_code, report.reason, report.summary
+
+
+def _start_live(cfg: Config, address: LiveAddress) -> LiveView:
+    """The live view's server, listening before anything flies; its URL on stderr.
+
+    Raises:
+        ConfigError: the address cannot be listened on, or the Foxglove SDK is missing.
+    """
+    try:
+        from mkflight.ground.live import start_live_view
+    except ModuleNotFoundError as err:
+        msg = f"--live needs the Foxglove SDK ({err.name}): pip install 'mkflight[live]'"
+        raise ConfigError(msg) from err
+
+    view = start_live_view(cfg, address)
+    print(f"live view: {view.address.url()} (Foxglove: Open connection)", file=sys.stderr)
+    return view
 
 
 def _print_summary(
@@ -193,11 +214,15 @@ def cmd_fly(
     config_path: str | None,
     overrides: list[str],
     config_source: ConfigSource | None = None,
+    live: LiveAddress | None = None,
 ) -> int:
     """Fly: pre-flight checks, handshake, take-off, hold, soft landing, release (SPEC §7).
 
+    ``live``: also serve the flight to Foxglove there (:mod:`mkflight.ground.live`).
+
     Raises:
-        ConfigError: a usage error (no ``--hover``, missing ports, a non-empty log dir).
+        ConfigError: a usage error (no ``--hover``, missing ports, a non-empty log dir,
+            a ``--live`` address that cannot be listened on).
         FlightError: the flight failed (exit 1, after the soft landing and release).
     """
     import asyncio
@@ -228,20 +253,26 @@ def cmd_fly(
             msg = f"--height {height_m:g}: {err}"
             raise ConfigError(msg) from err
     folder = _folder(cfg, log_dir)
-    code, reason, summary = asyncio.run(
-        _fly(
-            cfg,
-            sim=sim,
-            mk_port=mk_port,
-            laser_port=laser_port,
-            folder=folder,
-            height_m=height_m,
-            duration_s=duration_s,
-            config_path=config_path,
-            overrides=overrides,
-            config_source=config_source,
+    view = None if live is None else _start_live(cfg, live)
+    try:
+        code, reason, summary = asyncio.run(
+            _fly(
+                cfg,
+                sim=sim,
+                mk_port=mk_port,
+                laser_port=laser_port,
+                folder=folder,
+                height_m=height_m,
+                duration_s=duration_s,
+                config_path=config_path,
+                overrides=overrides,
+                config_source=config_source,
+                live=view,
+            )
         )
-    )
+    finally:
+        if view is not None:
+            view.close()
     truth = _truth_precision(folder)  # when a simulator wrote its truth there
     if as_json:
         head = {"log_dir": str(folder), "reason": reason, "truth_precision": truth}
@@ -283,5 +314,14 @@ def add_parser(subparsers: Subparsers) -> None:
         help="land this long after the checks",
     )
     fly.add_argument("--log-dir", metavar="DIR", help="flight folder (default: new, dated)")
+    fly.add_argument(
+        "--live",
+        nargs="?",
+        const=DEFAULT_LIVE,
+        type=parse_live_address,
+        metavar="[HOST:]PORT",
+        help="serve the flight live to Foxglove (WebSocket; default 127.0.0.1:8765, "
+        "loopback unless a host is given)",
+    )
     add_json(fly, "the summary as one JSON object")
     fly.set_defaults(func=Command(cmd_fly))

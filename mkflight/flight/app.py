@@ -42,6 +42,7 @@ from mkflight.flight.matcher_worker import MatcherError, MatcherWorker
 from mkflight.flight.mk_commands import MkCommands
 from mkflight.flight.mk_step import MkStep
 from mkflight.flight.monitor import GcWatch, HoldMonitor
+from mkflight.flight.observer import FlightObserver
 from mkflight.flight.policy import FlightPolicy
 from mkflight.flight.ports import FlightPorts, OpenPorts
 from mkflight.flight.preflight import (
@@ -121,13 +122,15 @@ class FlightApp:
         notifier: Notifier | None = None,
         policy: FlightPolicy | None = None,
         worker: MatcherWorker | None = None,
+        observer: FlightObserver | None = None,
         on_step: Callable[[ImuStepOutput], None] | None = None,
         sample_filter: Callable[[ImuSample], ImuSample] | None = None,
     ) -> None:
         """Prepare a flight; nothing opens before :meth:`fly`.
 
         ``policy``: what a replay or a test changes (default: a live flight's, which
-        changes nothing); ``worker``: the scan matcher (default: as ``cfg`` says).
+        changes nothing); ``worker``: the scan matcher (default: as ``cfg`` says);
+        ``observer`` is told of every step and scan (the live view; default: nobody).
         ``on_step`` sees every step's output; ``sample_filter`` may change each DebugOut
         sample before the step (the fault-injection seam of the tests: NaN, a crash).
         """
@@ -137,6 +140,7 @@ class FlightApp:
         self.notifier = notifier or Notifier.from_env()
         self.policy = policy or FlightPolicy()
         self.worker = worker or MatcherWorker(cfg, mode=cfg.scanmatch.worker)
+        self.observer = observer or FlightObserver()
         self._on_step = on_step
         self._sample_filter = sample_filter
         self.core = FlightCore(cfg, height_m=opts.height_m)
@@ -285,6 +289,7 @@ class FlightApp:
             monitor=self.monitor,
             notifier=self.notifier,
             policy=self.policy,
+            observer=self.observer,
             on_step=self._on_step,
             sample_filter=self._sample_filter,
         )
@@ -315,6 +320,7 @@ class FlightApp:
             clock=clock,
             stale_s=self.cfg.safety.laser_stale_s,
             scan_wanted=self.policy.scan_wanted,
+            on_scan=self.observer.on_scan,
         )
         watchdog = watchdog_task(
             clock,

@@ -21,6 +21,7 @@ from mkflight.flight.flight_logs import FlightLogs
 from mkflight.flight.laser_inbox import AttitudeHistory, LaserInbox
 from mkflight.flight.mk_commands import MkCommands
 from mkflight.flight.monitor import HoldMonitor
+from mkflight.flight.observer import FlightObserver
 from mkflight.flight.policy import FlightPolicy
 from mkflight.flight.sdnotify import Notifier
 from mkflight.flight.stats import StepStats
@@ -42,8 +43,9 @@ RequestStop = Callable[[StopRequest, str], None]
 class MkStep:
     """The shell around :meth:`FlightCore.imu_step` (see the module docstring).
 
-    ``on_step`` sees every step's output; ``sample_filter`` may change each DebugOut
-    sample before the step (the fault-injection seam of the tests: NaN, a crash).
+    ``observer`` is told of every step, last (the live view); ``on_step`` sees every
+    step's output; ``sample_filter`` may change each DebugOut sample before the step (the
+    fault-injection seam of the tests: NaN, a crash).
     """
 
     def __init__(
@@ -62,6 +64,7 @@ class MkStep:
         monitor: HoldMonitor,
         notifier: Notifier,
         policy: FlightPolicy,
+        observer: FlightObserver | None = None,
         on_step: Callable[[ImuStepOutput], None] | None = None,
         sample_filter: Callable[[ImuSample], ImuSample] | None = None,
     ) -> None:
@@ -78,6 +81,7 @@ class MkStep:
         self._monitor = monitor
         self._notifier = notifier
         self._policy = policy
+        self._observer = observer or FlightObserver()
         self._on_step = on_step
         self._sample_filter = sample_filter
         self._last_out: ImuStepOutput | None = None
@@ -128,6 +132,7 @@ class MkStep:
         if self._on_step is not None:
             self._on_step(out)
         self._policy.after_step(self._logs)
+        self._observer.on_step(sample, out, self.core.active_setpoint)
         return out
 
     def _apply_laser_results(self, now_ns: int) -> None:

@@ -43,6 +43,7 @@ from mkflight.logs.schema import (
     StopDeadline,
 )
 from mkflight.mk.link import MkLink
+from mkflight.msgs import Scan
 from mkflight.safety.failsafe import StopRequest
 from mkflight.urg.driver import UrgDriver
 
@@ -109,12 +110,13 @@ async def laser_task(
     clock: Clock,
     stale_s: float,
     scan_wanted: Callable[[int], bool],
+    on_scan: Callable[[Scan], None],
 ) -> None:
     """Scans to the matcher, at the attitude of their time; results into ``inbox``.
 
     ``stale_s`` is the laser's staleness limit; a scan that does not come in three of
     them (at least 1 s) makes the driver restart the stream. ``scan_wanted(seq)`` may
-    skip a scan.
+    skip a scan; ``on_scan`` is told of each scan as it comes (the observer's).
     """
     timeout_s = max(1.0, stale_s * 3)
     while True:
@@ -130,6 +132,7 @@ async def laser_task(
             await driver.reopen(max_wait_s=LASER_REOPEN_S)
             logs.event(LaserReopened(t_ns=clock.now_ns()))
             continue
+        on_scan(scan)
         if not scan_wanted(scan.seq):
             continue
         pitch, roll = attitude.at(scan.t_ns)

@@ -32,4 +32,4 @@ TRUTH: Final = "/truth"  #: the simulator's ground truth, when the folder has it
 # turned z up (x forward, y left) for viewers that assume a z-up world.
 WORLD_FRAME: Final = "world"
 VEHICLE_FRAME: Final = "vehicle"
-MAP_FRAME: Final = "map"
+MAP_FRAME: Final = "map"  #: W turned z up: the 3D panel's display frame
