@@ -313,7 +313,11 @@ def add_parser(subparsers: Subparsers) -> None:
         metavar="S",
         help="land this long after the checks",
     )
-    fly.add_argument("--log-dir", metavar="DIR", help="flight folder (default: new, dated)")
+    fly.add_argument(
+        "--log-dir",
+        metavar="DIR",
+        help="flight folder (default: a new numbered one under logging.dir)",
+    )
     fly.add_argument(
         "--live",
         nargs="?",
