@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
@@ -206,3 +207,23 @@ def precision(samples: HoldSamples, source: str) -> Precision:
         raise AnalysisInputError(msg)
     err = samples.position_m - samples.setpoint_m
     return Precision(_axis(err[:, 0]), _axis(err[:, 1]), _axis(err[:, 2]), n, source)
+
+
+def folder_truth_precision(folder: Path) -> Precision | None:
+    """A flight folder's HOLD precision against the simulator's ``truth.txt``, or None.
+
+    None when it cannot be measured: no truth, no HOLD, an unreadable file. What ``fly``
+    prints after a simulated flight and ``mkflight flights`` lists.
+    """
+    from mkflight.logs import events as events_log
+    from mkflight.logs.flight import TRUTH
+
+    truth = folder / TRUTH
+    if not truth.is_file():
+        return None
+    try:
+        samples = hold_samples(events_log.read_events(folder / events_log.FILE_NAME).events)
+        rows = parse_truth(truth.read_text(encoding="utf-8"), str(truth))
+        return precision(with_truth(samples, rows), "truth")
+    except (AnalysisInputError, MkflightError, OSError, UnicodeDecodeError):
+        return None

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from mkflight.commands.args import Command, Subparsers, add_json, add_ports, config_options
-from mkflight.errors import ConfigError, FlightError, MkflightError, PortNotFoundError
+from mkflight.errors import ConfigError, FlightError, PortNotFoundError
 from mkflight.ground.live_address import DEFAULT_LIVE, LiveAddress, parse_live_address
 
 if TYPE_CHECKING:
@@ -64,24 +64,10 @@ def _warn_latest(problem: str | None) -> None:
 
 def _truth_precision(folder: Path) -> dict[str, float | int] | None:
     """The HOLD precision against the simulator's truth (None without truth or HOLD)."""
-    from mkflight.analysis.precision import (
-        AnalysisInputError,
-        hold_samples,
-        parse_truth,
-        with_truth,
-    )
-    from mkflight.analysis.precision import precision as measure
-    from mkflight.flight.flight_logs import TRUTH_FILE
-    from mkflight.logs.events import read_events
+    from mkflight.analysis.precision import folder_truth_precision
 
-    truth = folder / TRUTH_FILE
-    if not truth.is_file():
-        return None
-    try:
-        samples = hold_samples(read_events(folder / "events.jsonl").events)
-        truth_rows = parse_truth(truth.read_text(encoding="utf-8"), str(truth))
-        p = measure(with_truth(samples, truth_rows), "truth")
-    except (AnalysisInputError, MkflightError, OSError):
+    p = folder_truth_precision(folder)
+    if p is None:
         return None
     return {
         "std_x_m": round(p.x.std_m, 5),
@@ -201,6 +187,18 @@ def _print_summary(
     print("failsafes: " + ("; ".join(unplanned) if unplanned else "none"))
 
 
+def _print_result(folder: Path, reason: str, summary: FlightSummary, *, as_json: bool) -> None:
+    """The flight's summary on stdout: text, or one JSON object (``--json``)."""
+    from mkflight.logs.flight_json import json_safe, to_plain
+
+    truth = _truth_precision(folder)  # when a simulator wrote its truth there
+    if as_json:
+        head = {"log_dir": str(folder), "reason": reason, "truth_precision": truth}
+        print(json.dumps(json_safe({**head, **to_plain(summary)}), allow_nan=False))
+    else:
+        _print_summary(folder, reason, summary, truth)
+
+
 def cmd_fly(
     *,
     hover: bool,
@@ -228,7 +226,6 @@ def cmd_fly(
     import asyncio
 
     from mkflight.config import load_config
-    from mkflight.logs.flight_json import json_safe, to_plain
 
     if not hover:
         msg = "fly needs a mission: --hover (the only one so far)"
@@ -273,12 +270,7 @@ def cmd_fly(
     finally:
         if view is not None:
             view.close()
-    truth = _truth_precision(folder)  # when a simulator wrote its truth there
-    if as_json:
-        head = {"log_dir": str(folder), "reason": reason, "truth_precision": truth}
-        print(json.dumps(json_safe({**head, **to_plain(summary)}), allow_nan=False))
-    else:
-        _print_summary(folder, reason, summary, truth)
+    _print_result(folder, reason, summary, as_json=as_json)
     if code != 0:
         raise FlightError(reason)
     return 0

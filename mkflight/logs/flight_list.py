@@ -189,21 +189,10 @@ def _from_hover(s: HoverSummary) -> dict[str, Any]:
 
 def truth_precision(folder: Path) -> tuple[float, float, float] | None:
     """The HOLD std (x, y, height) against a simulator's ``truth.txt``; None if not measurable."""
-    from mkflight.analysis.precision import (
-        AnalysisInputError,
-        hold_samples,
-        parse_truth,
-        precision,
-        with_truth,
-    )
-    from mkflight.logs.events import read_events
+    from mkflight.analysis.precision import folder_truth_precision
 
-    truth = folder / _TRUTH
-    try:
-        samples = hold_samples(read_events(folder / _EVENTS).events)
-        rows = parse_truth(truth.read_text(encoding="utf-8"), str(truth))
-        p = precision(with_truth(samples, rows), "truth")
-    except (AnalysisInputError, MkflightError, OSError, UnicodeDecodeError):
+    p = folder_truth_precision(folder)
+    if p is None:
         return None
     return (round(p.x.std_m, 6), round(p.y.std_m, 6), round(p.z.std_m, 6))
 

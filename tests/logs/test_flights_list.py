@@ -87,7 +87,8 @@ def _run(*args: str) -> str:
         [*MKFLIGHT, "flights", *args], capture_output=True, text=True, check=False
     )
     assert proc.returncode == 0, proc.stderr
-    assert proc.stderr == ""
+    assert proc.stderr.startswith("config: built-in defaults")  # the one line of a config user
+    assert proc.stderr.count("\n") == 1
     return proc.stdout
 
 
@@ -192,7 +193,10 @@ def test_the_default_dir_is_logging_dir_and_a_missing_one_is_an_error(
         [*MKFLIGHT, "flights", str(tmp_path / "none")], capture_output=True, text=True, check=False
     )
     assert proc.returncode == 1
-    assert proc.stderr.strip() == f"error: {tmp_path / 'none'}: no such folder of flights"
+    assert proc.stderr.splitlines() == [
+        "config: built-in defaults",
+        f"error: {tmp_path / 'none'}: no such folder of flights",
+    ]
     (tmp_path / "empty").mkdir()
     assert _run(str(tmp_path / "empty")).strip() == f"no flight folders in {tmp_path / 'empty'}"
     assert _run(str(tmp_path / "empty"), "--json").strip() == "[]"
