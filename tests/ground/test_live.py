@@ -333,9 +333,10 @@ def test_a_port_in_use_is_one_clear_error_before_anything_flies(tmp_path: Path) 
             timeout=60,
         )
     assert proc.returncode == 2
-    assert proc.stderr.startswith(f"error: --live 127.0.0.1:{port}: cannot listen: ")
-    assert "in use" in proc.stderr
-    assert proc.stderr.count("\n") == 1
+    config_line, error_line = proc.stderr.splitlines()  # the config: line, then one error
+    assert config_line == "config: built-in defaults"
+    assert error_line.startswith(f"error: --live 127.0.0.1:{port}: cannot listen: ")
+    assert "in use" in error_line
     assert not (tmp_path / "f").exists()  # the simulator never started
 
 
@@ -350,6 +351,7 @@ def test_without_the_foxglove_sdk_live_is_one_clear_error(tmp_path: Path) -> Non
     )
     assert proc.returncode == 2
     assert proc.stderr == (
+        "config: built-in defaults\n"
         "error: --live needs the Foxglove SDK (foxglove): pip install 'mkflight[live]'\n"
     )
 
