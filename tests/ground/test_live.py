@@ -50,7 +50,6 @@ from mkflight.urg.units import step_body_angle_rad
 
 MKFLIGHT = [sys.executable, "-m", "mkflight"]
 FLIGHT_S = 8.0
-CONNECT_S = 30.0  # the server listens before the simulator starts: seconds at most
 
 
 def free_port() -> int:
@@ -76,40 +75,34 @@ class Watched:
 
 
 async def _connect(port: int, **kwargs: Any) -> ClientConnection:
-    """Connect once the server listens (it starts with the command)."""
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + CONNECT_S
-    while True:
-        try:
-            return await websockets.connect(
-                f"ws://127.0.0.1:{port}", subprotocols=[Subprotocol(SUBPROTOCOL)], **kwargs
-            )
-        except OSError:
-            if loop.time() > deadline:
-                raise
-            await asyncio.sleep(0.05)
+    """Connect to a server that listens already (``start_live_view`` returned, or ``fly``
+    printed its ``live view:`` line)."""
+    return await websockets.connect(
+        f"ws://127.0.0.1:{port}", subprotocols=[Subprotocol(SUBPROTOCOL)], **kwargs
+    )
 
 
 async def _slow_client(port: int) -> ClientConnection:
     """Subscribe to everything, then never read: a 4 KiB receive buffer, a 1-frame queue."""
     sock = socket.socket()
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + CONNECT_S
     sock.setblocking(False)
-    while True:
-        try:
-            await loop.sock_connect(sock, ("127.0.0.1", port))
-            break
-        except OSError:
-            if loop.time() > deadline:
-                raise
-            await asyncio.sleep(0.05)
+    await asyncio.get_running_loop().sock_connect(sock, ("127.0.0.1", port))
     ws = await websockets.connect(
         f"ws://127.0.0.1:{port}", subprotocols=[Subprotocol(SUBPROTOCOL)], sock=sock, max_queue=1
     )
     await subscribe(ws)
     return ws
+
+
+async def _listening(stderr: asyncio.StreamReader) -> bytes:
+    """The daemon's stderr up to its ``live view: ws://...`` line: the server listens then."""
+    seen = b""
+    while b"live view: ws://" not in seen:
+        line = await stderr.readline()
+        assert line, f"fly ended before its live view listened: {seen.decode()}"
+        seen += line
+    return seen
 
 
 async def _watch(port: int, folder: Path) -> Watched:
@@ -130,7 +123,10 @@ async def _watch(port: int, folder: Path) -> Watched:
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
     )
-    outputs = asyncio.ensure_future(proc.communicate())
+    assert proc.stdout is not None
+    assert proc.stderr is not None
+    head = await _listening(proc.stderr)
+    outputs = asyncio.gather(proc.stdout.read(), proc.stderr.read(), proc.wait())
     ws = await _connect(port)
     subs = await subscribe(ws)
     slow = await _slow_client(port)
@@ -139,7 +135,8 @@ async def _watch(port: int, folder: Path) -> Watched:
         async for frame in ws:  # until the server stops at the flight's end
             if isinstance(frame, bytes) and (m := subs.message(frame)) is not None:
                 messages.append(m)
-    out, err = await outputs
+    out, tail, _ = await outputs
+    err = head + tail
     await slow.close()
     return Watched(
         folder,
@@ -539,7 +536,7 @@ async def test_a_publishing_fault_stops_the_view_never_the_flight(
     async def flight() -> str:
         for k in range(10):  # the steps go on after the view failed
             _step(feed, k * 50_000_000)
-            await asyncio.sleep(0.001)
+            await asyncio.sleep(0)  # one loop turn: the publisher runs between steps
         return "landed"
 
     assert await view.during(flight()) == "landed"
