@@ -1,7 +1,7 @@
 """Where the config comes from: the search, the ``config:`` line, ``config show`` and ``check``.
 
 ``--config`` beats ``$MKFLIGHT_CONFIG``, which beats ``/etc/mkflight/config.yaml`` (here a
-file under ``tmp_path``: :data:`mkflight.config.SYSTEM_CONFIG` is patched), which beats the
+file under ``tmp_path``: :data:`mkflight.config_search.SYSTEM_CONFIG` is patched), which beats the
 built-in defaults; ``--set`` goes on top of whichever it is.
 """
 
@@ -13,18 +13,11 @@ from pathlib import Path
 
 import pytest
 
-import mkflight.config as config
+import mkflight.config_search as config
 from mkflight.cli import main
 from mkflight.commands.args import Command
-from mkflight.config import (
-    Config,
-    ConfigSource,
-    config_to_dict,
-    leaf_keys,
-    load_config,
-    locate_config,
-    read_yaml,
-)
+from mkflight.config import Config, config_to_dict, load_config, read_yaml
+from mkflight.config_search import ConfigSource, leaf_keys, locate_config
 from mkflight.errors import ConfigError
 from mkflight.logs.flight_json import new_flight_info, read_flight_json, write_flight_json
 

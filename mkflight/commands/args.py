@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, Final, Literal, NoReturn, TypeAlias
 from mkflight import cli_types
 
 if TYPE_CHECKING:
-    from mkflight.config import ConfigSource
+    from mkflight.config_search import ConfigSource
 
 #: Exit code of a usage or configuration error (SPEC §7).
 EXIT_USAGE: Final = 2
@@ -96,7 +96,7 @@ def use_config(config_path: str | None, overrides: list[str]) -> ConfigSource:
     Raises:
         ConfigError: ``$MKFLIGHT_CONFIG`` names no file, or the config is invalid.
     """
-    from mkflight.config import load_located, locate_config
+    from mkflight.config_search import load_located, locate_config
     from mkflight.eventlog import stderr_prefix
 
     source = locate_config(config_path, overrides)

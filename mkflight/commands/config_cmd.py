@@ -15,12 +15,12 @@ from typing import TYPE_CHECKING
 from mkflight.commands.args import Command, Subparsers, add_json, config_options, subcommands
 
 if TYPE_CHECKING:
-    from mkflight.config import ConfigSource, KeyOrigin
+    from mkflight.config_search import ConfigSource, KeyOrigin
 
 
 def show_lines(keys: list[KeyOrigin]) -> list[str]:
     """``key: value`` (YAML, a list in flow style) and the origin as an aligned comment."""
-    from mkflight.config import dump_key
+    from mkflight.config_search import dump_key
 
     pairs = [dump_key(k.key, k.value) for k in keys]
     width = max((len(p) for p in pairs), default=0)
@@ -41,7 +41,7 @@ def cmd_config_show(
     """
     import msgspec
 
-    from mkflight.config import ConfigSource, key_origins
+    from mkflight.config_search import ConfigSource, key_origins
 
     if config_source is None:
         config_source = ConfigSource(
@@ -61,7 +61,7 @@ def cmd_config_show(
 
 def cmd_config_check(*, file: str) -> int:
     """Validate the config file ``file``: ``FILE: ok (N keys set)``, else its ConfigError."""
-    from mkflight.config import count_keys
+    from mkflight.config_search import count_keys
 
     n = count_keys(file)
     print(f"{file}: ok ({n} key{'' if n == 1 else 's'} set)")

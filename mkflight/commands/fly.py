@@ -13,7 +13,8 @@ from mkflight.errors import ConfigError, FlightError, PortNotFoundError
 from mkflight.ground.live_address import DEFAULT_LIVE, LiveAddress, parse_live_address
 
 if TYPE_CHECKING:
-    from mkflight.config import Config, ConfigSource
+    from mkflight.config import Config
+    from mkflight.config_search import ConfigSource
     from mkflight.ground.live import LiveView
     from mkflight.logs.schema import FlightSummary
 

@@ -17,7 +17,7 @@ from mkflight.commands.args import (
 from mkflight.errors import ConfigError
 
 if TYPE_CHECKING:
-    from mkflight.config import ConfigSource
+    from mkflight.config_search import ConfigSource
 
 
 def cmd_sim_hover(

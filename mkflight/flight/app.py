@@ -34,7 +34,8 @@ from pathlib import Path
 import structlog
 
 from mkflight.clock import Clock, MonotonicClock
-from mkflight.config import Config, ConfigSource
+from mkflight.config import Config
+from mkflight.config_search import ConfigSource
 from mkflight.conversions import NS_PER_S
 from mkflight.errors import FlightError, PreflightError
 from mkflight.flight.laser_inbox import AttitudeHistory, LaserInbox

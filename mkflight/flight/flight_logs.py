@@ -19,7 +19,8 @@ from typing import Any, TypeVar
 import structlog
 
 from mkflight.clock import Clock
-from mkflight.config import Config, ConfigSource
+from mkflight.config import Config
+from mkflight.config_search import ConfigSource
 from mkflight.control.controller import Setpoint
 from mkflight.errors import PreflightError
 from mkflight.flight.step import ImuStepOutput

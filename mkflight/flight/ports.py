@@ -17,7 +17,8 @@ from pathlib import Path
 from typing import NamedTuple
 
 from mkflight.clock import Clock
-from mkflight.config import Config, ConfigSource
+from mkflight.config import Config
+from mkflight.config_search import ConfigSource
 from mkflight.flight.flight_logs import FlightLogs
 from mkflight.flight.links import open_laser, open_mk
 from mkflight.flight.policy import FlightPolicy

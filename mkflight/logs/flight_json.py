@@ -12,7 +12,7 @@ Format: one JSON object (UTF-8, indented)::
       "summary": {...}                              # null until the flight ends
     }
 
-``config_source`` is a :class:`~mkflight.config.ConfigSource`: the file the command's
+``config_source`` is a :class:`~mkflight.config_search.ConfigSource`: the file the command's
 search found (``--config``, ``$MKFLIGHT_CONFIG``, ``/etc/mkflight/config.yaml``) or none,
 and the ``--set`` items. It is absent when the writer did not know it (a replay, a
 library caller, an older mkflight): an optional key, so the format stays 1.
@@ -48,7 +48,8 @@ from typing import Any, Final
 import msgspec
 
 import mkflight
-from mkflight.config import Config, ConfigSource, config_to_dict
+from mkflight.config import Config, config_to_dict
+from mkflight.config_search import ConfigSource
 from mkflight.errors import ReplayError
 from mkflight.logs._file import MAX_JSON_DEPTH, read_bytes, too_deep
 from mkflight.logs.schema import FlightSummary, HoverSummary, UnknownSummary

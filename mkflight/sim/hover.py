@@ -40,7 +40,8 @@ from typing import Final
 
 import numpy as np
 
-from mkflight.config import Config, ConfigSource
+from mkflight.config import Config
+from mkflight.config_search import ConfigSource
 from mkflight.control.controller import Setpoint
 from mkflight.control.phases import Phase, PhaseRequests
 from mkflight.conversions import NS_PER_S, US_PER_S

@@ -24,7 +24,8 @@ from typing import Any, Final
 
 import numpy as np
 
-from mkflight.config import Config, ConfigSource
+from mkflight.config import Config
+from mkflight.config_search import ConfigSource
 from mkflight.conversions import MM_PER_M, NS_PER_S
 from mkflight.flight.laser_pipeline import LaserPipeline
 from mkflight.flight.step import FlightCore, ImuStepOutput

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mkflight.config import ConfigSource
+from mkflight.config_search import ConfigSource
 from mkflight.logs.events import read_events
 from mkflight.logs.flight_json import read_flight_json
 from mkflight.logs.raw import read_raw
