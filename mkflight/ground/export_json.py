@@ -20,12 +20,10 @@ from typing import Any, Final
 from mkflight.ground import topics
 from mkflight.ground.export_series import (
     KINDS,
-    MAP_TO_WORLD_ROLL_RAD,
     NO_THROTTLE,
     Kind,
-    quaternion,
-    stamp,
 )
+from mkflight.ground.frames import MAP_TO_WORLD, quaternion, sec_nsec
 
 __all__ = ["SCHEMA_NAMES", "json_message", "json_schema"]
 
@@ -130,7 +128,7 @@ def _finite(value: Any) -> Any:
 
 
 def _time(t_ns: int) -> dict[str, int]:
-    sec, nsec = stamp(t_ns)
+    sec, nsec = sec_nsec(t_ns)
     return {"sec": sec, "nsec": nsec}
 
 
@@ -162,7 +160,7 @@ def _shaped(kind: str, row: dict[str, Any], t_ns: int) -> dict[str, Any]:
             "parent_frame_id": topics.MAP_FRAME,
             "child_frame_id": topics.WORLD_FRAME,
             "translation": _xyz(0.0, 0.0, 0.0),
-            "rotation": _quat(quaternion(roll_rad=MAP_TO_WORLD_ROLL_RAD)),
+            "rotation": _quat(MAP_TO_WORLD),
         }
     position = _xyz(row["x_m"], row["y_m"], row["z_m"])
     orientation = _quat(quaternion(yaw_rad=row["yaw_rad"]))

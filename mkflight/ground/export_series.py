@@ -52,7 +52,6 @@ e.g. the last row of a killed flight) is left out and counted.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Final, Literal, Protocol
@@ -68,7 +67,6 @@ if TYPE_CHECKING:
 
 __all__ = [
     "KINDS",
-    "MAP_TO_WORLD_ROLL_RAD",
     "NO_THROTTLE",
     "Kind",
     "Scans",
@@ -80,10 +78,8 @@ __all__ = [
     "miko_imu_from_table4",
     "original_series",
     "pose2d_from_table3",
-    "quaternion",
     "row_gas",
     "scan_series",
-    "stamp",
     "static_transform",
 ]
 
@@ -116,8 +112,6 @@ class Scans(Protocol):
 
 FieldType = Literal["float64", "int32", "int64", "string"]
 
-#: map -> world: W (z down) turned z up by a half turn about x (x forward, y left).
-MAP_TO_WORLD_ROLL_RAD: Final = math.pi
 #: ``/mikoCmd``'s throttle when the folder does not record it (TABLE IV has no gas
 #: column); TABLE VII's throttle is 0-512, so no real command has it.
 NO_THROTTLE: Final = -1
@@ -404,7 +398,7 @@ def original_series(flight: FlightData) -> list[Series]:
 
 
 def static_transform(t_ns: int) -> Series:
-    """``/tf_static``: map -> world (:data:`MAP_TO_WORLD_ROLL_RAD`), once, at ``t_ns``."""
+    """``/tf_static``: map -> world (:data:`~mkflight.ground.frames.MAP_TO_WORLD`), at ``t_ns``."""
     return Series(topics.TF_STATIC, "StaticTransform", np.array([t_ns], dtype=np.int64), {})
 
 
@@ -442,16 +436,3 @@ def left_out(flight: FlightData) -> dict[str, int]:
         for name, t in (("imu_50ms.log", flight.imu_t_s), ("laser_100ms.log", flight.laser_t_s))
         if not np.all(np.isfinite(t))
     }
-
-
-def quaternion(*, roll_rad: float = 0.0, yaw_rad: float = 0.0) -> tuple[float, float, float, float]:
-    """``(x, y, z, w)`` of a turn by ``yaw_rad`` about z after ``roll_rad`` about x."""
-    cr, sr = math.cos(roll_rad / 2), math.sin(roll_rad / 2)
-    cy, sy = math.cos(yaw_rad / 2), math.sin(yaw_rad / 2)
-    return (cy * sr, sy * sr, sy * cr, cy * cr)
-
-
-def stamp(t_ns: int) -> tuple[int, int]:
-    """``(sec, nsec)`` of a time in ns, nsec in [0, 1e9) (also for a time before 0)."""
-    sec, nsec = divmod(int(t_ns), NS_PER_S)
-    return sec, nsec

@@ -38,8 +38,8 @@ from foxglove.messages import (
     Vector3,
 )
 
-from mkflight.conversions import NS_PER_S
-from mkflight.ground import topics
+from mkflight.ground import frames, topics
+from mkflight.ground.frames import MAP_TO_WORLD, sec_nsec
 from mkflight.urg.units import step_body_angle_rad
 
 if TYPE_CHECKING:
@@ -50,14 +50,10 @@ if TYPE_CHECKING:
 
 Json = dict[str, Any]
 
-MAP_TO_WORLD: Final = (1.0, 0.0, 0.0, 0.0)
-"""``map`` -> ``world``: a half turn about x, as (x, y, z, w)."""
-
 
 def stamp(t_ns: int) -> Timestamp:
     """A Foxglove timestamp of the flight clock's ``t_ns``."""
-    sec, nsec = divmod(t_ns, NS_PER_S)
-    return Timestamp(sec, nsec)
+    return Timestamp(*sec_nsec(t_ns))
 
 
 def finite_or(value: float, default: float) -> float:
@@ -67,18 +63,10 @@ def finite_or(value: float, default: float) -> float:
 
 def quaternion(yaw_rad: float, pitch_rad: float = 0.0, roll_rad: float = 0.0) -> Quaternion:
     """``q_z(ψ) q_y(θ) q_x(φ)`` in an FRD frame (module docstring); NaN angles as 0."""
-    hy = finite_or(yaw_rad, 0.0) / 2
-    hp = finite_or(pitch_rad, 0.0) / 2
-    hr = finite_or(roll_rad, 0.0) / 2
-    cy, sy = math.cos(hy), math.sin(hy)
-    cp, sp = math.cos(hp), math.sin(hp)
-    cr, sr = math.cos(hr), math.sin(hr)
-    return Quaternion(
-        x=sr * cp * cy - cr * sp * sy,
-        y=cr * sp * cy + sr * cp * sy,
-        z=cr * cp * sy - sr * sp * cy,
-        w=cr * cp * cy + sr * sp * sy,
+    x, y, z, w = frames.quaternion(
+        finite_or(yaw_rad, 0.0), finite_or(pitch_rad, 0.0), finite_or(roll_rad, 0.0)
     )
+    return Quaternion(x=x, y=y, z=z, w=w)
 
 
 def _vehicle_pose(est: Estimate, sample: ImuSample) -> Pose:

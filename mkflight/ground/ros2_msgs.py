@@ -29,11 +29,9 @@ from mkflight.conversions import NS_PER_S
 from mkflight.ground import topics
 from mkflight.ground.export_series import (
     KINDS,
-    MAP_TO_WORLD_ROLL_RAD,
     NO_THROTTLE,
-    quaternion,
-    stamp,
 )
+from mkflight.ground.frames import MAP_TO_WORLD, quaternion, sec_nsec
 from mkflight.urg.units import URG_04LX
 
 __all__ = ["DEFINITIONS", "TYPE_NAMES", "msgdef", "ros2_field", "ros2_message"]
@@ -123,7 +121,7 @@ def ros2_field(name: str) -> str:
 
 
 def _header(t_ns: int, frame_id: str) -> dict[str, Any]:
-    sec, nsec = stamp(t_ns)
+    sec, nsec = sec_nsec(t_ns)
     return {"stamp": {"sec": sec, "nanosec": nsec}, "frame_id": frame_id}
 
 
@@ -163,7 +161,7 @@ def _stamped(
 
 def _map_to_world(t_ns: int) -> dict[str, Any]:
     """The transform map -> world: W turned z up (a half turn about x)."""
-    q = quaternion(roll_rad=MAP_TO_WORLD_ROLL_RAD)
+    q = MAP_TO_WORLD
     return _stamped(t_ns, topics.MAP_FRAME, topics.WORLD_FRAME, (0.0, 0.0, 0.0), q)
 
 

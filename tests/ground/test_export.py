@@ -36,11 +36,11 @@ from mkflight.ground.export_series import (
     miko_cmd_from_table4,
     miko_imu_from_table4,
     pose2d_from_table3,
-    quaternion,
     row_gas,
     scan_series,
-    stamp,
 )
+from mkflight.ground.frames import quaternion
+from mkflight.ground.frames import sec_nsec as stamp
 from mkflight.logs import table3, table4
 from mkflight.logs.events import read_events
 from mkflight.logs.flight import extern_controls, load_flight

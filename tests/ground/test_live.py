@@ -31,6 +31,7 @@ from mkflight.control.controller import Setpoint
 from mkflight.control.phases import Phase, PhaseEvent
 from mkflight.ground import live_messages as msg
 from mkflight.ground import topics
+from mkflight.ground.frames import MAP_TO_WORLD
 from mkflight.ground.live import LiveChannels, LivePublisher, LiveView, start_live_view
 from mkflight.ground.live_address import DEFAULT_LIVE, LiveAddress, parse_live_address
 from mkflight.ground.live_client import (
@@ -394,8 +395,8 @@ def test_a_clockwise_yaw_turns_the_nose_to_the_right_in_frd() -> None:
     assert right_down == pytest.approx([0, math.cos(0.3), math.sin(0.3)])
     assert _q(msg.quaternion(math.nan, math.nan, math.nan)) == pytest.approx((0, 0, 0, 1))
     # map -> world: a half turn about x makes W's down map's up, W's right map's left
-    assert _rotate(msg.MAP_TO_WORLD, (0, 0, 1)) == pytest.approx([0, 0, -1])
-    assert _rotate(msg.MAP_TO_WORLD, (0, 1, 0)) == pytest.approx([0, -1, 0])
+    assert _rotate(MAP_TO_WORLD, (0, 0, 1)) == pytest.approx([0, 0, -1])
+    assert _rotate(MAP_TO_WORLD, (0, 1, 0)) == pytest.approx([0, -1, 0])
 
 
 def test_scan_message_keeps_the_scan_steps_in_rising_bearing() -> None:
