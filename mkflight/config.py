@@ -169,7 +169,7 @@ class ScanmatchConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, k
     max_iterations: Annotated[int, Meta(ge=1, le=100)] = 15
     """Gauss-Newton steps at most (CSM/laser_scan_matcher: 10)."""
     max_correspondence_m: Annotated[float, Meta(gt=0, le=5)] = 0.5
-    """KD-tree gate on the point to line-centre distance in the first iterations (CSM:
+    """Gate on the point to line-centre distance in the first iterations (CSM:
     0.3 m; wider so an odometry prior that is 0.3 m off on a 1 m step still converges)."""
     min_correspondence_m: Annotated[float, Meta(gt=0, le=5)] = 0.2
     """Once steps are below 1 cm / 0.01 rad the gate shrinks by 0.7 per iteration down to
@@ -208,6 +208,9 @@ class ScanmatchConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, k
     keyframe_angle_rad: Annotated[float, Meta(gt=0, le=3.2)] = 0.1745
     """... or this much turn (10 degrees, its ``kf_dist_angular``)."""
     worker: Literal["process", "inline"] = "process"  # where the daemon runs the matcher
+    kernel: Literal["auto", "numba", "numpy"] = "auto"
+    """The matcher's inner loops: compiled by numba (``auto`` when numba imports) or the
+    numpy reference (same poses to rounding; several times slower)."""
 
 
 class SafetyConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
