@@ -207,7 +207,10 @@ class ScanmatchConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, k
     ``kf_dist_linear``)..."""
     keyframe_angle_rad: Annotated[float, Meta(gt=0, le=3.2)] = 0.1745
     """... or this much turn (10 degrees, its ``kf_dist_angular``)."""
-    worker: Literal["process", "inline"] = "process"  # where the daemon runs the matcher
+    worker: Literal["process", "inline"] = "inline"
+    """Where the daemon runs the matcher: on its event loop between steps (``inline``: a
+    compiled match costs well under a millisecond) or in a worker process at lower
+    priority (``process``: for the numpy kernel, or a slow board)."""
     kernel: Literal["auto", "numba", "numpy"] = "auto"
     """The matcher's inner loops: compiled by numba (``auto`` when numba imports) or the
     numpy reference (same poses to rounding; several times slower)."""
