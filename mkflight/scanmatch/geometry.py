@@ -107,10 +107,13 @@ def scan_to_points(
     a = np.asarray(angles_rad, dtype=np.float64).ravel()
     if r.shape != a.shape:
         return np.empty((0, 2))
-    with np.errstate(invalid="ignore"):
-        ok = np.isfinite(r) & np.isfinite(a) & (r >= min_range_m) & (r < max_range_m)
+    # NaN and infinite ranges fail the comparisons (no warning for comparisons).
+    ok = (r >= min_range_m) & (r < max_range_m) & np.isfinite(a)
     r, a = r[ok], a[ok]
-    return np.stack((r * np.cos(a), r * np.sin(a)), axis=1)
+    out = np.empty((r.shape[0], 2))
+    np.multiply(r, np.cos(a), out=out[:, 0])
+    np.multiply(r, np.sin(a), out=out[:, 1])
+    return out
 
 
 @dataclass(frozen=True, slots=True, eq=False)

@@ -118,9 +118,8 @@ def _usable_points(points_xy: FloatArray, max_points: int) -> FloatArray | None:
     pts = np.asarray(points_xy, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1:] != (2,) or pts.shape[0] == 0:
         return None
-    finite = np.isfinite(pts).all(axis=1)
-    if not finite.all():
-        pts = pts[finite]
+    if not math.isfinite(float(pts.sum())):  # one call; a NaN or inf anywhere shows
+        pts = pts[np.isfinite(pts).all(axis=1)]
     return _thin(pts, max_points)
 
 
@@ -138,7 +137,11 @@ class _Track:
 
 @functools.lru_cache(maxsize=8)
 def _params(cfg: ScanmatchConfig) -> FloatArray:
-    """The tuning as the kernels' ``params`` array (``kernel_numpy.P_*`` order; read-only)."""
+    """The tuning as the kernels' ``params`` array, in ``kernel_numpy.P_*`` order.
+
+    One array per config, shared: the kernels only read it (a read-only flag would make
+    numba compile a second variant of each function).
+    """
     params = np.array(
         [
             cfg.max_iterations,
@@ -155,7 +158,6 @@ def _params(cfg: ScanmatchConfig) -> FloatArray:
         ],
         dtype=np.float64,
     )
-    params.flags.writeable = False
     return params
 
 
