@@ -57,6 +57,8 @@ from mkflight.scanmatch.kernel_numpy import (
 )
 
 _JACOBI_SWEEPS = 12
+#: Steps of the linear search from a nearby position before bisection takes over.
+_MAX_LOCAL_STEPS = 8
 
 
 @njit(cache=True, error_model="numpy")
@@ -227,13 +229,20 @@ def _nearest(ref: FloatArray, qx: float, qy: float, gate_m: float, hint: IntArra
     rho2 = qx * qx + qy * qy
     phi = math.atan2(qy, qx)
     up = hint[i]
+    if up < 0 and i > 0:  # first iteration: the scan's previous point's, a step away
+        up = hint[i - 1]
     if up < 0:
         up = _bisect(bearing, m, phi)
-    else:  # the last iteration's position: a step or two from this one's
-        while up < m and bearing[up] < phi:
+    else:  # from a nearby position, the same first bearing >= phi as bisection finds
+        steps = 0
+        while up < m and bearing[up] < phi and steps < _MAX_LOCAL_STEPS:
             up += 1
-        while up > 0 and bearing[up - 1] >= phi:
+            steps += 1
+        while up > 0 and bearing[up - 1] >= phi and steps < _MAX_LOCAL_STEPS:
             up -= 1
+            steps += 1
+        if steps == _MAX_LOCAL_STEPS:
+            up = _bisect(bearing, m, phi)
     hint[i] = up
     down = up - 1
     best = -1
