@@ -14,12 +14,14 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+import structlog
 
 from mkflight.errors import ConfigError
 from mkflight.scanmatch import kernel_numpy
 from mkflight.scanmatch.kernel_numpy import CONSTANT_PARAMS, N_PARAMS, FloatArray, IntArray
 
 KernelName = Literal["auto", "numba", "numpy"]
+log = structlog.get_logger("mkflight.scanmatch")
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,12 +54,11 @@ def _compiled() -> Kernel | None:
     """The numba kernel, compiled and run once; None when numba is missing or fails."""
     try:
         from mkflight.scanmatch import kernel_numba
-    except ImportError:
-        return None
-    kernel = Kernel("numba", kernel_numba.reference_rows, kernel_numba.icp_solve)
-    try:
+
+        kernel = Kernel("numba", kernel_numba.reference_rows, kernel_numba.icp_solve)
         warm_up(kernel)
-    except Exception:
+    except Exception as err:  # not installed, no cache directory, a compiler error
+        log.warning("scan matcher: numba unusable, the numpy kernel runs", error=repr(err))
         return None
     return kernel
 

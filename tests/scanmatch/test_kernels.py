@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -118,3 +120,13 @@ def test_both_kernels_track_the_same_poses(seed: int) -> None:
             assert update.result.valid
         tracks[name] = np.array(poses)
     np.testing.assert_allclose(tracks["numba"], tracks["numpy"], rtol=0, atol=SAME_POSE)
+
+
+def test_the_warm_up_command_names_the_kernel() -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "mkflight.scanmatch"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert proc.stdout.startswith("scan matcher kernel: numba (ready in ")
