@@ -208,6 +208,50 @@ def _bisect(sorted_values: FloatArray, m: int, value: float) -> int:
 
 
 @njit(cache=True, error_model="numpy")
+def _before(ux: float, uy: float, qx: float, qy: float) -> int:
+    """1: the ray ``u`` lies before the point's bearing, 0: not, -1: cannot tell here.
+
+    Within 90 degrees of each other, ``bearing(u) < bearing(q)`` is ``u x q > 0``: a
+    cross product instead of an arctangent; beyond, the caller bisects on the angle.
+    """
+    if ux * qx + uy * qy <= 0.0:
+        return -1
+    if qx < 0.0 and ux < 0.0 and (qy >= 0.0) != (uy >= 0.0):
+        return -1  # on either side of the +-180 degree seam: the order of the angles flips
+    return 1 if ux * qy - uy * qx > 0.0 else 0
+
+
+@njit(cache=True, error_model="numpy")
+def _position(ref: FloatArray, qx: float, qy: float, start: int) -> int:
+    """The first centre whose bearing is not before the point's (bisection's answer).
+
+    From ``start`` (a nearby position; -1: none) by a few cross products; by bisection on
+    the point's bearing when there is no start, it is far, or the angles are too far
+    apart for the cross product.
+    """
+    m = ref.shape[1]
+    if start >= 0:
+        up = start
+        for _ in range(_MAX_LOCAL_STEPS):
+            if up < m:
+                ahead = _before(ref[5, up], ref[6, up], qx, qy)
+                if ahead < 0:
+                    break
+                if ahead == 1:
+                    up += 1
+                    continue
+            if up > 0:
+                behind = _before(ref[5, up - 1], ref[6, up - 1], qx, qy)
+                if behind < 0:
+                    break
+                if behind == 0:
+                    up -= 1
+                    continue
+            return up
+    return _bisect(ref[0], m, math.atan2(qy, qx))
+
+
+@njit(cache=True, error_model="numpy")
 def _nearest(ref: FloatArray, qx: float, qy: float, gate_m: float, hint: IntArray, i: int) -> int:
     """Index of the reference centre nearest to ``(qx, qy)`` within the gate, or -1.
 
@@ -221,28 +265,15 @@ def _nearest(ref: FloatArray, qx: float, qy: float, gate_m: float, hint: IntArra
     in a few steps.
     """
     m = ref.shape[1]
-    bearing = ref[0]
     cx = ref[1]
     cy = ref[2]
     ux = ref[5]
     uy = ref[6]
     rho2 = qx * qx + qy * qy
-    phi = math.atan2(qy, qx)
     up = hint[i]
     if up < 0 and i > 0:  # first iteration: the scan's previous point's, a step away
         up = hint[i - 1]
-    if up < 0:
-        up = _bisect(bearing, m, phi)
-    else:  # from a nearby position, the same first bearing >= phi as bisection finds
-        steps = 0
-        while up < m and bearing[up] < phi and steps < _MAX_LOCAL_STEPS:
-            up += 1
-            steps += 1
-        while up > 0 and bearing[up - 1] >= phi and steps < _MAX_LOCAL_STEPS:
-            up -= 1
-            steps += 1
-        if steps == _MAX_LOCAL_STEPS:
-            up = _bisect(bearing, m, phi)
+    up = _position(ref, qx, qy, up)
     hint[i] = up
     down = up - 1
     best = -1
