@@ -166,7 +166,7 @@ class ScanmatchConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, k
     CSM is the matcher ROS laser_scan_matcher runs; its defaults are given for comparison.
     """
 
-    max_iterations: Annotated[int, Meta(ge=1, le=100)] = 15
+    max_iterations: Annotated[int, Meta(ge=1, le=100)] = 10
     """Gauss-Newton steps at most (CSM/laser_scan_matcher: 10)."""
     max_correspondence_m: Annotated[float, Meta(gt=0, le=5)] = 0.5
     """Gate on the point to line-centre distance in the first iterations (CSM:
