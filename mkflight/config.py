@@ -166,10 +166,10 @@ class ScanmatchConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, k
     CSM is the matcher ROS laser_scan_matcher runs; its defaults are given for comparison.
     """
 
-    max_iterations: Annotated[int, Meta(ge=1, le=100)] = 15
+    max_iterations: Annotated[int, Meta(ge=1, le=100)] = 10
     """Gauss-Newton steps at most (CSM/laser_scan_matcher: 10)."""
     max_correspondence_m: Annotated[float, Meta(gt=0, le=5)] = 0.5
-    """KD-tree gate on the point to line-centre distance in the first iterations (CSM:
+    """Gate on the point to line-centre distance in the first iterations (CSM:
     0.3 m; wider so an odometry prior that is 0.3 m off on a 1 m step still converges)."""
     min_correspondence_m: Annotated[float, Meta(gt=0, le=5)] = 0.2
     """Once steps are below 1 cm / 0.01 rad the gate shrinks by 0.7 per iteration down to
@@ -207,7 +207,13 @@ class ScanmatchConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, k
     ``kf_dist_linear``)..."""
     keyframe_angle_rad: Annotated[float, Meta(gt=0, le=3.2)] = 0.1745
     """... or this much turn (10 degrees, its ``kf_dist_angular``)."""
-    worker: Literal["process", "inline"] = "process"  # where the daemon runs the matcher
+    worker: Literal["process", "inline"] = "inline"
+    """Where the daemon runs the matcher: on its event loop between steps (``inline``: a
+    compiled match costs well under a millisecond) or in a worker process at lower
+    priority (``process``: for the numpy kernel, or a slow board)."""
+    kernel: Literal["auto", "numba", "numpy"] = "auto"
+    """The matcher's inner loops: compiled by numba (``auto`` when numba imports) or the
+    numpy reference (same poses to rounding; several times slower)."""
 
 
 class SafetyConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):

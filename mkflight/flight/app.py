@@ -171,6 +171,13 @@ class FlightApp:
             PreflightError: the check that failed, by name.
         """
         opts = self.opts
+        # The matcher first: inline, its warm-up (the compiled kernel's import and load)
+        # holds the loop for a second, which must not happen while the ports stream.
+        try:
+            async with asyncio.timeout(WORKER_START_TIMEOUT_S):
+                await self.worker.start()
+        except (MatcherError, TimeoutError) as err:
+            raise PreflightError(check="scan match", detail=f"matcher process: {err!r}") from err
         logs, _, link, driver = await self.ports.open(
             self.cfg,
             opts.log_dir,
@@ -182,11 +189,6 @@ class FlightApp:
         )
         version, samples = await check_fc(link, self.cfg.safety.warn_voltage_v)
         info, scans = await check_laser(driver)
-        try:
-            async with asyncio.timeout(WORKER_START_TIMEOUT_S):
-                await self.worker.start()
-        except (MatcherError, TimeoutError) as err:
-            raise PreflightError(check="scan match", detail=f"matcher process: {err!r}") from err
         last = samples[-1]
         self.attitude.add(last.t_ns, last.pitch_rad, last.roll_rad)
         first = await check_hat_and_match(self.worker, scans, last.pitch_rad, last.roll_rad)

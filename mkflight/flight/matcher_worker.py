@@ -119,8 +119,9 @@ def _room_ranges(half_x_m: float, half_y_m: float, angles_rad: FloatArray) -> Fl
 def warm_up(cfg: Config) -> int:
     """Two synthetic scans through a throw-away pipeline: load every code path once.
 
-    The first call of numpy/scipy functions (KD-tree build and query, linear algebra)
-    pays for imports and caches; doing it here keeps it off the first real scan. A
+    The first call of the matcher's kernel loads (or, the first time on a machine,
+    compiles) its machine code, and numpy's first calls pay for imports and caches; doing
+    it here keeps it off the first real scan. A
     throw-away pipeline, so the real one's state is untouched. Returns the process id.
     """
     pipeline = LaserPipeline(cfg)

@@ -3,7 +3,7 @@
 Pure code (no I/O apart from the CARMEN log reader in :mod:`mkflight.scanmatch.carmen`):
 
 * :func:`scan_to_points` -- valid beams to points;
-* :func:`build_reference` -- a reference scan's line model and KD-tree (once per keyframe);
+* :func:`build_reference` -- a reference scan's line model, sorted by bearing (once per keyframe);
 * :func:`match` -- one registration, returning a :class:`MatchResult` with validity,
   quality and a degeneracy flag;
 * :class:`KeyframeMatcher` -- tracking over a sequence of scans (laser_scan_matcher's

@@ -15,9 +15,9 @@ the current scan is compared with the line of its nearest reference point. Unlik
 which takes the line through the two nearest raw reference points at every iteration,
 each reference point here carries a line fitted once per reference scan over a window of
 its scan-order neighbours (a local principal-component fit), and the fitted centroid
-replaces the noisy raw point. That costs a few tens of microseconds per keyframe, lets
-one k=1 KD-tree query per point suffice, and removes most of the range noise of the
-reference from every residual.
+replaces the noisy raw point. That costs a few microseconds per keyframe (compiled),
+removes most of the range noise of the reference from every residual, and leaves each
+iteration only the search for the nearest line centre along the bearings.
 """
 
 from __future__ import annotations
@@ -27,7 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial import cKDTree
+
+from mkflight.scanmatch.kernel_numpy import wrap_angle as wrap_angle
+from mkflight.scanmatch.kernels import KernelName, load_kernel
 
 FloatArray = npt.NDArray[np.float64]
 IndexArray = npt.NDArray[np.intp]
@@ -46,11 +48,6 @@ MIN_LINE_LENGTH_M = 0.12
 MAX_LINE_GAP_M = 0.5
 #: Largest RMS distance of a window's points from its line, and of its centre point.
 MAX_LINE_RMS_M = 0.03
-
-
-def wrap_angle(angle_rad: float) -> float:
-    """Wrap an angle to [-pi, pi)."""
-    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def compose(a: Pose, b: Pose) -> Pose:
@@ -110,10 +107,13 @@ def scan_to_points(
     a = np.asarray(angles_rad, dtype=np.float64).ravel()
     if r.shape != a.shape:
         return np.empty((0, 2))
-    with np.errstate(invalid="ignore"):
-        ok = np.isfinite(r) & np.isfinite(a) & (r >= min_range_m) & (r < max_range_m)
+    # NaN and infinite ranges fail the comparisons (no warning for comparisons).
+    ok = (r >= min_range_m) & (r < max_range_m) & np.isfinite(a)
     r, a = r[ok], a[ok]
-    return np.stack((r * np.cos(a), r * np.sin(a)), axis=1)
+    out = np.empty((r.shape[0], 2))
+    np.multiply(r, np.cos(a), out=out[:, 0])
+    np.multiply(r, np.sin(a), out=out[:, 1])
+    return out
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -121,108 +121,31 @@ class ReferenceScan:
     """A reference (keyframe) scan as fitted line pieces, built once and matched many times.
 
     Attributes:
-        centers_xy: (M, 2) centroid of each fitted line piece (on the line).
-        normals_xy: (M, 2) unit normal of each line piece.
-        tree: KD-tree over ``centers_xy`` (one k=1 query per current point and iteration).
+        rows: (7, M) one column per line piece, sorted by bearing: the bearing of its
+            centre from the sensor (rad), centre x, centre y (m, on the line), unit
+            normal x, y, and the bearing's cosine and sine. Correspondences are looked up
+            along the bearings
+            (:mod:`mkflight.scanmatch.kernel_numpy`).
         n_points: number of valid points the scan had before line fitting.
     """
 
-    centers_xy: FloatArray
-    normals_xy: FloatArray
-    tree: cKDTree
+    rows: FloatArray
     n_points: int
 
     @property
     def n_lines(self) -> int:
         """Number of usable line pieces."""
-        return int(self.centers_xy.shape[0])
+        return int(self.rows.shape[1])
 
+    @property
+    def centers_xy(self) -> FloatArray:
+        """(M, 2) centre of each line piece, in bearing order."""
+        return self.rows[1:3].T
 
-@dataclass(frozen=True, slots=True)
-class _PrefixSums:
-    """Cumulative sums over a scan in scan order: any window's moments in O(1).
-
-    ``c*`` start with a 0, so the sum over points ``lo .. hi-1`` is ``c[hi] - c[lo]``;
-    ``cbig`` counts the gaps between consecutive points that exceed the jump-edge limit.
-    """
-
-    x: FloatArray
-    y: FloatArray
-    cx: FloatArray
-    cy: FloatArray
-    cxx: FloatArray
-    cxy: FloatArray
-    cyy: FloatArray
-    cbig: FloatArray
-
-    @classmethod
-    def of(cls, pts: FloatArray, max_gap_m: float) -> _PrefixSums:
-        """The sums of the (N, 2) points ``pts``, gaps above ``max_gap_m`` counted."""
-        x, y = pts[:, 0], pts[:, 1]
-        zero = np.zeros(1)
-        gaps = np.hypot(np.diff(x), np.diff(y))
-        return cls(
-            x=x,
-            y=y,
-            cx=np.concatenate((zero, np.cumsum(x))),
-            cy=np.concatenate((zero, np.cumsum(y))),
-            cxx=np.concatenate((zero, np.cumsum(x * x))),
-            cxy=np.concatenate((zero, np.cumsum(x * y))),
-            cyy=np.concatenate((zero, np.cumsum(y * y))),
-            cbig=np.concatenate((zero, np.cumsum(gaps > max_gap_m, dtype=np.float64))),
-        )
-
-
-@dataclass(frozen=True, slots=True)
-class _WindowLines:
-    """The line fitted to every window of one half-width ``w`` (points ``i-w .. i+w``).
-
-    Attributes:
-        mid: index of each window's centre point.
-        ok: the window qualifies (chord, no jump edge, straight, centre on the line).
-        mx: x of each window's centroid, m.
-        my: y of the same, m.
-        phi: direction of each window's largest principal axis, rad.
-    """
-
-    mid: IndexArray
-    ok: BoolArray
-    mx: FloatArray
-    my: FloatArray
-    phi: FloatArray
-
-
-def _window_lines(
-    s: _PrefixSums, w: int, min_chord_m: float | None, max_line_rms_m: float
-) -> _WindowLines:
-    """Fit every window of half-width ``w`` by principal components (see build_reference).
-
-    ``min_chord_m`` None: no minimum chord (the widest window: better a short line than
-    none).
-    """
-    n = int(s.x.shape[0])
-    m = 2 * w + 1
-    lo = np.arange(0, n - 2 * w)  # window [lo, lo + m)
-    hi = lo + m
-    mid = lo + w
-    mx = (s.cx[hi] - s.cx[lo]) / m
-    my = (s.cy[hi] - s.cy[lo]) / m
-    sxx = (s.cxx[hi] - s.cxx[lo]) / m - mx * mx
-    sxy = (s.cxy[hi] - s.cxy[lo]) / m - mx * my
-    syy = (s.cyy[hi] - s.cyy[lo]) / m - my * my
-    half_tr = 0.5 * (sxx + syy)
-    disc = np.sqrt(np.maximum(0.25 * (sxx - syy) ** 2 + sxy * sxy, 0.0))
-    lam_min = half_tr - disc
-    no_jump = (s.cbig[hi - 1] - s.cbig[lo]) == 0
-    ok = no_jump & (lam_min <= max_line_rms_m * max_line_rms_m)
-    if min_chord_m is not None:
-        ok &= np.hypot(s.x[hi - 1] - s.x[lo], s.y[hi - 1] - s.y[lo]) >= min_chord_m
-    # Direction of the largest principal axis; the normal is perpendicular to it.
-    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
-    # The window's own centre point must lie on the line too (not so at a corner).
-    off = np.abs(np.cos(phi) * (s.y[mid] - my) - np.sin(phi) * (s.x[mid] - mx))
-    ok &= off <= max_line_rms_m
-    return _WindowLines(mid, ok, mx, my, phi)
+    @property
+    def normals_xy(self) -> FloatArray:
+        """(M, 2) unit normal of each line piece, in bearing order."""
+        return self.rows[3:5].T
 
 
 def build_reference(
@@ -232,18 +155,19 @@ def build_reference(
     max_gap_m: float = MAX_LINE_GAP_M,
     max_line_rms_m: float = MAX_LINE_RMS_M,
     half_windows: tuple[int, ...] = LINE_HALF_WINDOWS,
+    kernel: KernelName = "auto",
 ) -> ReferenceScan | None:
-    """Fit a local line to every point of a scan and index the lines in a KD-tree.
+    """Fit a local line to every point of a scan and sort the lines by bearing.
 
     For each point and each candidate half-width ``w`` (smallest first) the points
     ``i-w .. i+w`` in scan order are fitted by principal components (window sums from
-    cumulative sums: no Python loop over points). A window qualifies when its chord (first
-    to last point) is at least ``min_line_length_m`` (waived for the widest window) -- so
-    close, densely sampled walls get wide windows and the 1 cm range noise does not tilt
-    the normal -- no gap between consecutive points exceeds ``max_gap_m`` (a jump edge),
-    and both the RMS distance of the points from the fitted line and the centre point's own
-    distance from it are at most ``max_line_rms_m`` (a corner or clutter). Points with no
-    qualifying window are dropped: they would give wrong normals.
+    cumulative sums). A window qualifies when its chord (first to last point) is at least
+    ``min_line_length_m`` (waived for the widest window) -- so close, densely sampled
+    walls get wide windows and the 1 cm range noise does not tilt the normal -- no gap
+    between consecutive points exceeds ``max_gap_m`` (a jump edge), and both the RMS
+    distance of the points from the fitted line and the centre point's own distance from
+    it are at most ``max_line_rms_m`` (a corner or clutter). Points with no qualifying
+    window are dropped: they would give wrong normals.
 
     Args:
         points_xy: (N, 2) valid points in scan order (from :func:`scan_to_points`).
@@ -251,6 +175,7 @@ def build_reference(
         max_gap_m: largest distance between consecutive points inside a window.
         max_line_rms_m: largest RMS point-to-line distance of a window.
         half_windows: the window half-widths tried, increasing.
+        kernel: which implementation fits (``scanmatch.kernel``; same lines either way).
 
     Returns:
         The reference, or None when fewer than 3 lines could be fitted.
@@ -259,31 +184,12 @@ def build_reference(
     n = int(pts.shape[0]) if pts.ndim == 2 and pts.shape[1:] == (2,) else 0
     if n < 5 or not np.isfinite(pts).all():
         return None
-    sums = _PrefixSums.of(pts, max_gap_m)
-    chosen = np.zeros(n, dtype=bool)
-    center = np.empty((n, 2))
-    normal = np.empty((n, 2))
-    for w in half_windows:
-        if 2 * w + 1 > n:
-            break
-        min_chord_m = min_line_length_m if w != half_windows[-1] else None
-        lines = _window_lines(sums, w, min_chord_m, max_line_rms_m)
-        ok = lines.ok & ~chosen[lines.mid]
-        if ok.any():
-            sel = lines.mid[ok]
-            phi = lines.phi[ok]
-            center[sel, 0] = lines.mx[ok]
-            center[sel, 1] = lines.my[ok]
-            normal[sel, 0] = -np.sin(phi)
-            normal[sel, 1] = np.cos(phi)
-            chosen[sel] = True
-    if int(chosen.sum()) < 3:
-        return None
-    centers = np.ascontiguousarray(center[chosen])
-    normals = np.ascontiguousarray(normal[chosen])
-    return ReferenceScan(
-        centers_xy=centers,
-        normals_xy=normals,
-        tree=cKDTree(centers, balanced_tree=False, compact_nodes=False),
-        n_points=n,
+    x = np.ascontiguousarray(pts[:, 0])
+    y = np.ascontiguousarray(pts[:, 1])
+    windows = np.asarray(half_windows, dtype=np.int64)
+    rows = load_kernel(kernel).reference_rows(
+        x, y, windows, min_line_length_m, max_gap_m, max_line_rms_m
     )
+    if rows.shape[1] < 3:
+        return None
+    return ReferenceScan(rows=rows, n_points=n)

@@ -6,7 +6,7 @@ the motion since the current one exceeds ``scanmatch.keyframe_distance_m`` or
 ``keyframe_angle_rad`` (laser_scan_matcher's ``kf_dist_linear`` / ``kf_dist_angular``). At
 hover the vehicle stays near one keyframe for many scans, so the pose error does not grow
 with the number of scans (scan-to-scan matching integrates one registration error per
-scan), and the keyframe's line model and KD-tree are built once for all those scans.
+scan), and the keyframe's line model is built once for all those scans.
 
 The guess handed to ICP is keyframe -> current as predicted: keyframe -> previous estimate,
 composed with the motion prior of the caller (odometry increment) or, without one, the
@@ -108,6 +108,7 @@ class KeyframeMatcher:
             max_gap_m=gap,
             max_line_rms_m=rms,
             half_windows=self._half_windows,
+            kernel=self.config.kernel,
         )
 
     def _predict(self, dt_s: float | None) -> Pose:

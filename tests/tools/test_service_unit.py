@@ -137,6 +137,12 @@ WRITE_GRANTS = {
 }
 
 
+def test_the_compiled_matcher_caches_in_the_writable_state_directory(unit: Unit) -> None:
+    env = dict(v.split("=", 1) for line in unit["Service"]["Environment"] for v in line.split())
+    cache = PurePosixPath(env["NUMBA_CACHE_DIR"])
+    assert cache.is_relative_to(unit["Service"]["ReadWritePaths"][0])
+
+
 def test_unprivileged_in_group_dialout_only(unit: Unit) -> None:
     service = unit["Service"]
     assert _one(unit, "Service", "User") not in {"root", "0"}

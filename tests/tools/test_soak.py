@@ -24,7 +24,11 @@ MINUTES = 0.4
 def soak(tmp_path_factory: pytest.TempPathFactory) -> tuple[int, str, dict[str, Any]]:
     out = tmp_path_factory.mktemp("soak") / "soak.json"
     proc = subprocess.run(
-        [sys.executable, str(SOAK), "--minutes", str(MINUTES), "--json", str(out)],
+        # The worker process (not the default inline matcher): its memory is reported too.
+        [
+            *(sys.executable, str(SOAK), "--minutes", str(MINUTES), "--json", str(out)),
+            *("--set", "scanmatch.worker=process"),
+        ],
         capture_output=True,
         text=True,
         check=False,

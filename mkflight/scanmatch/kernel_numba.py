@@ -1,0 +1,449 @@
+"""The matcher's two inner loops compiled by numba: the arithmetic of :mod:`kernel_numpy`.
+
+Why a compiler: numpy pays about a microsecond per call on arrays of a few hundred
+points, and one ICP iteration is some forty calls, so a pure numpy matcher spends most of
+a scan in call overhead (measured: 2-6 ms a scan here, several times CSM's C). Written as
+loops and compiled, the same iterations cost tens of microseconds. numba compiles to
+machine code through LLVM on the target itself (it ships aarch64 wheels), needs no C
+toolchain, and caches the machine code on disk (``cache=True``: next to this file, or in
+``$NUMBA_CACHE_DIR``), so only the first start on a machine pays the compilation.
+
+The functions mirror :mod:`kernel_numpy` statement by statement (same formulas, same
+order of operations, same tie-breaking: the first minimum wins), so the poses agree to
+rounding; a test runs both on the same scans. The 3x3 eigen-decomposition is a cyclic
+Jacobi sweep (Golub & Van Loan, Matrix Computations, 4th ed., Algorithm 8.5.3) instead of
+LAPACK's, which numba could reach only through scipy: the update and the structural
+information do not depend on the order or the signs of the eigenvectors.
+
+Importing this module compiles nothing; the first call of each function compiles it (or
+loads it from the cache): :func:`warm_up` does that before a flight.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from mkflight.scanmatch.kernel_numpy import (
+    N_RESULTS,
+    P_DEGENERACY_THRESHOLD,
+    P_GATE_M,
+    P_KEEP_FRACTION,
+    P_MAX_ITERATIONS,
+    P_MIN_EIGENVALUE,
+    P_MIN_GATE_M,
+    P_MIN_LEVER2_M2,
+    P_MIN_MATCHES,
+    P_NOISE_FLOOR,
+    P_ROBUST_SCALE_M,
+    P_SHRINK,
+    P_SHRINK_BELOW_M,
+    P_SHRINK_BELOW_RAD,
+    P_STEP_TOL_M,
+    P_STEP_TOL_RAD,
+    R_CONVERGED,
+    R_FAILED,
+    R_INLIERS,
+    R_ITERATIONS,
+    R_MIN_INFORMATION,
+    R_RMS,
+    R_TH,
+    R_X,
+    R_Y,
+    FloatArray,
+    IntArray,
+)
+
+_JACOBI_SWEEPS = 12
+#: Steps of the linear search from a nearby position before bisection takes over.
+_MAX_LOCAL_STEPS = 8
+
+
+@njit(cache=True, error_model="numpy")
+def fit_lines(
+    x: FloatArray,
+    y: FloatArray,
+    half_windows: IntArray,
+    min_chord_m: float,
+    max_gap_m: float,
+    max_rms_m: float,
+) -> FloatArray:
+    """:func:`kernel_numpy.fit_lines`, as loops."""
+    n = x.shape[0]
+    out = np.full((n, 5), np.nan)
+    cx = np.zeros(n + 1)
+    cy = np.zeros(n + 1)
+    cxx = np.zeros(n + 1)
+    cxy = np.zeros(n + 1)
+    cyy = np.zeros(n + 1)
+    cbig = np.zeros(n)  # cbig[i]: jump edges among the first i gaps
+    for i in range(n):
+        cx[i + 1] = cx[i] + x[i]
+        cy[i + 1] = cy[i] + y[i]
+        cxx[i + 1] = cxx[i] + x[i] * x[i]
+        cxy[i + 1] = cxy[i] + x[i] * y[i]
+        cyy[i + 1] = cyy[i] + y[i] * y[i]
+    for i in range(n - 1):
+        big = 1.0 if math.hypot(x[i + 1] - x[i], y[i + 1] - y[i]) > max_gap_m else 0.0
+        cbig[i + 1] = cbig[i] + big
+    chosen = np.zeros(n, dtype=np.bool_)
+    last = half_windows[-1]
+    for w in half_windows:
+        if 2 * w + 1 > n:
+            break
+        m = 2 * w + 1
+        for lo in range(n - 2 * w):
+            mid = lo + w
+            if chosen[mid]:
+                continue
+            hi = lo + m
+            if cbig[hi - 1] - cbig[lo] != 0:
+                continue
+            mx = (cx[hi] - cx[lo]) / m
+            my = (cy[hi] - cy[lo]) / m
+            sxx = (cxx[hi] - cxx[lo]) / m - mx * mx
+            sxy = (cxy[hi] - cxy[lo]) / m - mx * my
+            syy = (cyy[hi] - cyy[lo]) / m - my * my
+            half_tr = 0.5 * (sxx + syy)
+            disc = math.sqrt(max(0.25 * (sxx - syy) ** 2 + sxy * sxy, 0.0))
+            if not half_tr - disc <= max_rms_m * max_rms_m:
+                continue
+            if w != last and not (math.hypot(x[hi - 1] - x[lo], y[hi - 1] - y[lo]) >= min_chord_m):
+                continue
+            phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+            off = abs(math.cos(phi) * (y[mid] - my) - math.sin(phi) * (x[mid] - mx))
+            if not off <= max_rms_m:
+                continue
+            out[mid, 0] = mx
+            out[mid, 1] = my
+            out[mid, 2] = -math.sin(phi)
+            out[mid, 3] = math.cos(phi)
+            out[mid, 4] = 1.0
+            chosen[mid] = True
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def reference_rows(
+    x: FloatArray,
+    y: FloatArray,
+    half_windows: IntArray,
+    min_chord_m: float,
+    max_gap_m: float,
+    max_rms_m: float,
+) -> FloatArray:
+    """:func:`kernel_numpy.reference_rows`, as loops."""
+    lines = fit_lines(x, y, half_windows, min_chord_m, max_gap_m, max_rms_m)
+    n = lines.shape[0]
+    m = 0
+    for i in range(n):
+        if lines[i, 4] == 1.0:
+            m += 1
+    bearing = np.empty(m)
+    index = np.empty(m, dtype=np.int64)
+    k = 0
+    for i in range(n):
+        if lines[i, 4] == 1.0:
+            bearing[k] = math.atan2(lines[i, 1], lines[i, 0])
+            index[k] = i
+            k += 1
+    order = np.argsort(bearing, kind="mergesort")
+    rows = np.empty((7, m))
+    for k in range(m):
+        i = index[order[k]]
+        b = bearing[order[k]]
+        rows[0, k] = b
+        for r in range(4):
+            rows[r + 1, k] = lines[i, r]
+        rows[5, k] = math.cos(b)
+        rows[6, k] = math.sin(b)
+    return rows
+
+
+@njit(cache=True, error_model="numpy")
+def _eigh3(a: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Eigenvalues and eigenvectors (columns) of a symmetric 3x3 matrix by Jacobi rotations."""
+    d = a.copy()
+    v = np.eye(3)
+    for _ in range(_JACOBI_SWEEPS):
+        off = d[0, 1] ** 2 + d[0, 2] ** 2 + d[1, 2] ** 2
+        if off == 0.0 or off < 1e-36 * (d[0, 0] ** 2 + d[1, 1] ** 2 + d[2, 2] ** 2):
+            break
+        for p in range(2):
+            for q in range(p + 1, 3):
+                if d[p, q] == 0.0:
+                    continue
+                theta = (d[q, q] - d[p, p]) / (2.0 * d[p, q])
+                t = math.copysign(1.0, theta) / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                c = 1.0 / math.sqrt(t * t + 1.0)
+                s = t * c
+                for k in range(3):
+                    dkp, dkq = d[k, p], d[k, q]
+                    d[k, p] = c * dkp - s * dkq
+                    d[k, q] = s * dkp + c * dkq
+                for k in range(3):
+                    dpk, dqk = d[p, k], d[q, k]
+                    d[p, k] = c * dpk - s * dqk
+                    d[q, k] = s * dpk + c * dqk
+                for k in range(3):
+                    vkp, vkq = v[k, p], v[k, q]
+                    v[k, p] = c * vkp - s * vkq
+                    v[k, q] = s * vkp + c * vkq
+    return np.array([d[0, 0], d[1, 1], d[2, 2]]), v
+
+
+@njit(cache=True, error_model="numpy")
+def _bisect(sorted_values: FloatArray, m: int, value: float) -> int:
+    """First index whose value is >= ``value`` (``np.searchsorted``, side left)."""
+    lo, hi = 0, m
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if sorted_values[mid] < value:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, error_model="numpy")
+def _before(ux: float, uy: float, qx: float, qy: float) -> int:
+    """1: the ray ``u`` lies before the point's bearing, 0: not, -1: cannot tell here.
+
+    Within 90 degrees of each other, ``bearing(u) < bearing(q)`` is ``u x q > 0``: a
+    cross product instead of an arctangent; beyond, the caller bisects on the angle.
+    """
+    if ux * qx + uy * qy <= 0.0:
+        return -1
+    if qx < 0.0 and ux < 0.0 and (qy >= 0.0) != (uy >= 0.0):
+        return -1  # on either side of the +-180 degree seam: the order of the angles flips
+    return 1 if ux * qy - uy * qx > 0.0 else 0
+
+
+@njit(cache=True, error_model="numpy")
+def _position(ref: FloatArray, qx: float, qy: float, start: int) -> int:
+    """The first centre whose bearing is not before the point's (bisection's answer).
+
+    From ``start`` (a nearby position; -1: none) by a few cross products; by bisection on
+    the point's bearing when there is no start, it is far, or the angles are too far
+    apart for the cross product.
+    """
+    m = ref.shape[1]
+    if start >= 0:
+        up = start
+        for _ in range(_MAX_LOCAL_STEPS):
+            if up < m:
+                ahead = _before(ref[5, up], ref[6, up], qx, qy)
+                if ahead < 0:
+                    break
+                if ahead == 1:
+                    up += 1
+                    continue
+            if up > 0:
+                behind = _before(ref[5, up - 1], ref[6, up - 1], qx, qy)
+                if behind < 0:
+                    break
+                if behind == 0:
+                    up -= 1
+                    continue
+            return up
+    return _bisect(ref[0], m, math.atan2(qy, qx))
+
+
+@njit(cache=True, error_model="numpy")
+def _nearest(ref: FloatArray, qx: float, qy: float, gate_m: float, hint: IntArray, i: int) -> int:
+    """Index of the reference centre nearest to ``(qx, qy)`` within the gate, or -1.
+
+    The centres are sorted by bearing; two walks start at the point's own bearing, one
+    each way (round the ends: a 360-degree scan). A centre whose bearing is ``delta`` from
+    the point's is at least ``rho * sin(delta)`` away while ``delta`` < 90 degrees (the
+    point's distance from the centre's ray, ``|q x u|`` with u the ray's unit vector) and
+    at least ``rho`` beyond; that bound grows along a walk, which stops once it exceeds
+    the best squared distance so far. The walks take turns, so the best found by one
+    shortens the other. The result is the exact nearest centre, as a KD-tree finds it,
+    in a few steps.
+    """
+    m = ref.shape[1]
+    cx = ref[1]
+    cy = ref[2]
+    ux = ref[5]
+    uy = ref[6]
+    rho2 = qx * qx + qy * qy
+    up = hint[i]
+    if up < 0 and i > 0:  # first iteration: the scan's previous point's, a step away
+        up = hint[i - 1]
+    up = _position(ref, qx, qy, up)
+    hint[i] = up
+    down = up - 1
+    best = -1
+    best_d2 = gate_m * gate_m
+    up_open = True
+    down_open = True
+    for _ in range(m):
+        if up_open:
+            k = up if up < m else up - m
+            cross = qx * uy[k] - qy * ux[k]
+            bound2 = cross * cross if qx * ux[k] + qy * uy[k] > 0.0 else rho2
+            if bound2 > best_d2:
+                up_open = False
+            else:
+                dx = qx - cx[k]
+                dy = qy - cy[k]
+                d2 = dx * dx + dy * dy
+                if d2 < best_d2:
+                    best, best_d2 = k, d2
+                up += 1
+        if down_open:
+            k = down if down >= 0 else down + m
+            cross = qx * uy[k] - qy * ux[k]
+            bound2 = cross * cross if qx * ux[k] + qy * uy[k] > 0.0 else rho2
+            if bound2 > best_d2:
+                down_open = False
+            else:
+                dx = qx - cx[k]
+                dy = qy - cy[k]
+                d2 = dx * dx + dy * dy
+                if d2 < best_d2:
+                    best, best_d2 = k, d2
+                down -= 1
+        if not (up_open or down_open):
+            break
+    return best
+
+
+@njit(cache=True, error_model="numpy")
+def _pairs(
+    px: FloatArray,
+    py: FloatArray,
+    ref: FloatArray,
+    pose: FloatArray,
+    gate_m: float,
+    work: FloatArray,
+    hint: IntArray,
+) -> int:
+    """Rows ``(r, nx, ny, mx, my)`` of the pairs into ``work``; their number.
+
+    ``hint``: each point's bearing position in the reference from the last iteration (-1:
+    none yet), updated.
+    """
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    k = 0
+    for i in range(px.shape[0]):
+        qx = c * px[i] - s * py[i] + pose[0]
+        qy = s * px[i] + c * py[i] + pose[1]
+        best = _nearest(ref, qx, qy, gate_m, hint, i)
+        if best >= 0:
+            nx, ny = ref[3, best], ref[4, best]
+            work[0, k] = nx * (qx - ref[1, best]) + ny * (qy - ref[2, best])
+            work[1, k] = nx
+            work[2, k] = ny
+            work[3, k] = qx
+            work[4, k] = qy
+            k += 1
+    return k
+
+
+@njit(cache=True, error_model="numpy")
+def _trim(work: FloatArray, k: int, keep_fraction: float) -> int:
+    """Keep the ``keep_fraction`` of the ``k`` pairs with the smallest residuals, in order."""
+    keep = int(k * keep_fraction)
+    if keep >= k or keep < 1:
+        return k
+    cut = np.partition(np.abs(work[0, :k]), keep - 1)[keep - 1]
+    n = 0
+    for i in range(k):
+        if abs(work[0, i]) <= cut:
+            for row in range(5):
+                work[row, n] = work[row, i]
+            n += 1
+    return n
+
+
+@njit(cache=True, error_model="numpy")
+def _solve_step(work: FloatArray, n_in: int, params: FloatArray, step: FloatArray) -> None:
+    """``step[:] = dx, dy, dth, rms, min_information`` (kernel_numpy._solve_step)."""
+    c = params[P_ROBUST_SCALE_M]
+    h = np.zeros((3, 3))
+    g = np.zeros(3)
+    rr = 0.0
+    ll = 0.0
+    for i in range(n_in):
+        r, nx, ny, mx, my = work[0, i], work[1, i], work[2, i], work[3, i], work[4, i]
+        jr = (nx, ny, ny * mx - nx * my)
+        wgt = 1.0 / (1.0 + (r * (1.0 / c)) ** 2) if c > 0.0 else 1.0
+        for a in range(3):
+            for b in range(3):
+                h[a, b] += jr[a] * wgt * jr[b]
+            g[a] += jr[a] * wgt * r
+        rr += r * r
+        ll += mx * mx + my * my
+    lever2 = ll / n_in
+    lever = math.sqrt(lever2) if lever2 > params[P_MIN_LEVER2_M2] else 1.0
+    scale = np.array([1.0, 1.0, 1.0 / lever])
+    hs = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            hs[a, b] = h[a, b] * (scale[a] * scale[b]) / n_in
+    evals, evecs = _eigh3(hs)
+    floor = params[P_NOISE_FLOOR]
+    u = np.zeros(3)
+    info_min = math.inf
+    for e in range(3):
+        sinfo = 0.0
+        for i in range(n_in):
+            nx, ny, mx, my = work[1, i], work[2, i], work[3, i], work[4, i]
+            p = (
+                evecs[0, e] * scale[0] * nx
+                + evecs[1, e] * scale[1] * ny
+                + evecs[2, e] * scale[2] * (ny * mx - nx * my)
+            )
+            if abs(p) > floor:
+                sinfo += p * p
+        sinfo /= n_in
+        info_min = min(info_min, sinfo)
+        if sinfo > params[P_DEGENERACY_THRESHOLD] and evals[e] > params[P_MIN_EIGENVALUE]:
+            proj = 0.0
+            for a in range(3):
+                proj += evecs[a, e] * (g[a] * scale[a] / n_in)
+            for a in range(3):
+                u[a] += evecs[a, e] * (-proj / evals[e])
+    step[0], step[1], step[2] = u[0], u[1], u[2] / lever
+    step[3], step[4] = math.sqrt(rr / n_in), info_min
+
+
+@njit(cache=True, error_model="numpy")
+def icp_solve(
+    px: FloatArray, py: FloatArray, ref: FloatArray, guess: FloatArray, params: FloatArray
+) -> FloatArray:
+    """:func:`kernel_numpy.icp_solve`, as loops."""
+    out = np.zeros(N_RESULTS)
+    out[R_RMS] = math.nan
+    pose = guess.copy()
+    gate_m = params[P_GATE_M]
+    work = np.empty((5, px.shape[0]))
+    hint = np.full(px.shape[0], -1, dtype=np.int64)  # each point's bearing position
+    step = np.empty(5)
+    for _ in range(int(params[P_MAX_ITERATIONS])):
+        out[R_ITERATIONS] += 1.0
+        k = _pairs(px, py, ref, pose, gate_m, work, hint)
+        if k < params[P_MIN_MATCHES]:
+            out[R_FAILED] = 1.0
+            return out
+        n_in = _trim(work, k, params[P_KEEP_FRACTION])
+        _solve_step(work, n_in, params, step)
+        dx, dy, dth = step[0], step[1], step[2]
+        out[R_RMS], out[R_MIN_INFORMATION], out[R_INLIERS] = step[3], step[4], n_in
+        c, s = math.cos(dth), math.sin(dth)
+        x = dx + c * pose[0] - s * pose[1]
+        y = dy + s * pose[0] + c * pose[1]
+        pose[0], pose[1] = x, y
+        pose[2] = (dth + pose[2] + math.pi) % (2.0 * math.pi) - math.pi
+        step_m = math.hypot(dx, dy)
+        if step_m < params[P_STEP_TOL_M] and abs(dth) < params[P_STEP_TOL_RAD]:
+            out[R_CONVERGED] = 1.0
+            break
+        if step_m < params[P_SHRINK_BELOW_M] and abs(dth) < params[P_SHRINK_BELOW_RAD]:
+            gate_m = max(params[P_MIN_GATE_M], params[P_SHRINK] * gate_m)
+    out[R_X], out[R_Y], out[R_TH] = pose[0], pose[1], pose[2]
+    return out

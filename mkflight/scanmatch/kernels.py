@@ -1,0 +1,80 @@
+"""Which implementation of the matcher's inner loops runs: compiled (numba) or numpy.
+
+``scanmatch.kernel`` chooses: ``numba`` (:mod:`kernel_numba`, the flight's default when
+numba imports), ``numpy`` (:mod:`kernel_numpy`, the reference: no compiler, several times
+slower) or ``auto`` (numba when it imports and compiles, else numpy). Both give the same
+poses to rounding (tested), so the choice is one of speed only.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import structlog
+
+from mkflight.errors import ConfigError
+from mkflight.scanmatch import kernel_numpy
+from mkflight.scanmatch.kernel_numpy import CONSTANT_PARAMS, N_PARAMS, FloatArray, IntArray
+
+KernelName = Literal["auto", "numba", "numpy"]
+log = structlog.get_logger("mkflight.scanmatch")
+
+
+@dataclass(frozen=True, slots=True)
+class Kernel:
+    """One implementation: its name and its two functions (as in :mod:`kernel_numpy`)."""
+
+    name: Literal["numba", "numpy"]
+    reference_rows: Callable[[FloatArray, FloatArray, IntArray, float, float, float], FloatArray]
+    icp_solve: Callable[[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray], FloatArray]
+
+
+NUMPY = Kernel("numpy", kernel_numpy.reference_rows, kernel_numpy.icp_solve)
+
+
+def warm_up(kernel: Kernel) -> None:
+    """Run both functions once on a small square room, so that none compiles in flight."""
+    t = np.linspace(-1.0, 1.0, 40)
+    x = np.concatenate((np.full(40, 2.0), t * 2.0))
+    y = np.concatenate((t * 2.0, np.full(40, 2.0)))
+    ref = kernel.reference_rows(x, y, np.array([1, 2, 4], dtype=np.int64), 0.1, 0.5, 0.03)
+    params = np.array(
+        [5, 0.5, 0.2, 0.9, 0.05, 1e-4, 1e-4, 3, 0.2, 0.01, *CONSTANT_PARAMS], dtype=np.float64
+    )
+    assert params.shape == (N_PARAMS,)
+    kernel.icp_solve(x, y, ref, np.array([0.01, 0.0, 0.0]), params)
+
+
+@functools.cache
+def _compiled() -> Kernel | None:
+    """The numba kernel, compiled and run once; None when numba is missing or fails."""
+    try:
+        from mkflight.scanmatch import kernel_numba
+
+        kernel = Kernel("numba", kernel_numba.reference_rows, kernel_numba.icp_solve)
+        warm_up(kernel)
+    except Exception as err:  # not installed, no cache directory, a compiler error
+        log.warning("scan matcher: numba unusable, the numpy kernel runs", error=repr(err))
+        return None
+    return kernel
+
+
+def load_kernel(name: KernelName) -> Kernel:
+    """The kernel ``name`` asks for (``auto``: numba when it works, else numpy).
+
+    Raises:
+        ConfigError: ``numba`` was asked for and numba is not installed or fails.
+    """
+    if name == "numpy":
+        return NUMPY
+    compiled = _compiled()
+    if compiled is not None:
+        return compiled
+    if name == "numba":
+        msg = "scanmatch.kernel: numba is not installed or cannot compile (pip install numba)"
+        raise ConfigError(msg)
+    return NUMPY
