@@ -59,7 +59,14 @@ from pathlib import Path
 from typing import Any
 
 from bench_flight import Variant
-from bench_trees import DEFAULT_BASELINE_REV, Tree, baseline_and_current, load_average
+from bench_scanmatch import DATASETS, RANDOM_ROOMS
+from bench_trees import (
+    DEFAULT_BASELINE_REV,
+    Tree,
+    UnknownRevisionError,
+    baseline_and_current,
+    load_average,
+)
 
 from mkflight.conversions import MS_PER_S, NS_PER_MS, NS_PER_US, US_PER_S
 from mkflight.mk.codec import FrameParser
@@ -317,7 +324,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--repeat", type=int, default=3, help="scanmatch: alternated runs per tree and dataset"
     )
-    parser.add_argument("--datasets", nargs="*", metavar="NAME", help="scanmatch: these only")
+    parser.add_argument(
+        "--datasets",
+        nargs="+",
+        choices=[*DATASETS, RANDOM_ROOMS],
+        metavar="NAME",
+        help=f"scanmatch: these only ({', '.join([*DATASETS, RANDOM_ROOMS])})",
+    )
     parser.add_argument(
         "--flight-duration",
         type=float,
@@ -345,6 +358,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="the 'flight' group measures fly --live instead: off and on alternated in pairs "
         "of --flight-duration with a client subscribed to every topic",
     )
+    parser.add_argument("--live-pairs", type=int, default=3, help="--live: pairs of flights")
     parser.add_argument(
         "--import-repeat", type=int, default=5, help="startup: fresh interpreters per import"
     )
@@ -429,7 +443,7 @@ def run_tree_groups(args: argparse.Namespace, result: dict[str, Any]) -> None:
         variants = flight_variants(trees, args.flight_compare, args.worker)
         flown = None
         if wanted(args, "flight") and args.live:
-            result["flight_live"] = bench_flight.run_live(args.flight_duration, args.flight_pairs)
+            result["flight_live"] = bench_flight.run_live(args.flight_duration, args.live_pairs)
         elif wanted(args, "flight"):
             flown = bench_flight.run_pairs(variants, args.flight_pairs, args.flight_duration)
             result["flight"] = flown
@@ -536,6 +550,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         result = run_groups(args)
+    except UnknownRevisionError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     except (RuntimeError, subprocess.CalledProcessError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 1

@@ -37,6 +37,10 @@ IMPORTED = {"flight": "mkflight.flight.app", "matcher": "mkflight.scanmatch"}
 HEAVY = ("scipy", "numpy", "msgspec", "yaml")
 
 
+class UnknownRevisionError(ValueError):
+    """The baseline revision is not in the repository (a usage error)."""
+
+
 @dataclass(frozen=True)
 class Tree:
     """One code tree: a label for the tables, its folder, and the revision it holds."""
@@ -92,13 +96,13 @@ def baseline_and_current(baseline_rev: str) -> Iterator[tuple[Tree, Tree]]:
     """The baseline revision extracted into a temporary folder, and the current tree.
 
     Raises:
-        RuntimeError: the revision is unknown or cannot be extracted.
+        UnknownRevisionError: the revision is not in the repository.
     """
     try:
         revision = describe_revision(baseline_rev)
     except subprocess.CalledProcessError as err:
         msg = f"unknown baseline revision {baseline_rev!r}: {err.stderr.strip()}"
-        raise RuntimeError(msg) from err
+        raise UnknownRevisionError(msg) from err
     with tempfile.TemporaryDirectory(prefix="mkflight-baseline-") as tmp:
         extract(baseline_rev, Path(tmp))
         yield (
