@@ -314,7 +314,9 @@ TREE_GROUPS = ("scanmatch", "flight", "startup")
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("--only", choices=GROUPS, help="run one group")
+    parser.add_argument(
+        "--only", nargs="+", choices=GROUPS, metavar="GROUP", help=f"run these: {', '.join(GROUPS)}"
+    )
     parser.add_argument(
         "--baseline-rev",
         default=DEFAULT_BASELINE_REV,
@@ -380,7 +382,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def wanted(args: argparse.Namespace, group: str) -> bool:
-    return args.only in (None, group)
+    return args.only is None or group in args.only
 
 
 def run_latency(samples: int, rounds: int) -> dict[str, Any]:
