@@ -62,6 +62,7 @@ def _run(times: list[float], trans: float, rot: float) -> dict[str, Any]:
         "prior": "odom",
         "times_ms": times,
         "median_ms": sorted(times)[len(times) // 2],
+        "cpu_ms_per_scan": sum(times) / len(times),
         "trans_mean_m": trans,
         "rot_mean_rad": rot,
         "invalid": 0,
@@ -77,6 +78,8 @@ def test_a_row_pools_both_trees_and_checks_accuracy() -> None:
     assert row["current"]["median_ms"] == 2.0
     assert row["current"]["run_medians_ms"] == [2.0, 2.0]
     assert row["ratio_median"] == 0.5
+    assert row["current"]["cpu_ms_per_scan"] == 2.0  # the median of the runs' means
+    assert row["ratio_cpu"] == 0.5
     assert row["ratio_current_over_csm"] == 4.0
     assert row["accuracy_no_worse"] is False  # rot 7.8 mrad against 7.7: beyond the slack
     within_slack = [_run([1.0], 0.0280, 0.0077 + 0.00004)]
