@@ -16,9 +16,10 @@ has never seen). The code used from ``mkflight`` is the public API both trees ha
 ``KeyframeMatcher``, ``read_carmen``, ``scan_to_points``, ``log_tracking.track_records``,
 ``trajectory.read_trajectory`` and ``sim.room``.
 
-The comparison (:func:`compare`) runs baseline, current, baseline, current ... (``repeat``
-rounds) per dataset, pools each tree's per-scan times, and reports both medians and p95s,
-the ratio current/baseline, both accuracies and whether current's is no worse. CSM's
+The comparison (:func:`compare`) runs baseline and current alternated per dataset
+(``repeat`` rounds: A B, B A, A B, ...), pools each tree's per-scan times, and reports both
+medians and p95s, the CPU time a scan, the ratios current/baseline, both accuracies and
+whether current's is no worse. CSM's
 figures are read from the data README's table (CSM ``sm_icp`` with laser_scan_matcher's
 defaults, measured on a 2-core VM, not in this run): a labelled reference column, with the
 ratio to them. Timings on a shared VM vary by about +-30 % run to run; the alternation
@@ -365,14 +366,14 @@ def compare_row(
 def compare(
     trees: tuple[Tree, Tree], only: list[str] | None = None, repeat: int = 3
 ) -> dict[str, Any]:
-    """Every present dataset, ``repeat`` rounds of baseline then current (module docstring)."""
+    """Every present dataset, ``repeat`` rounds of both trees alternated (module docstring)."""
     present, skipped = available(only)
     csm = csm_reference()
     rows = []
     for name in present:
         runs: dict[str, list[dict[str, Any]]] = {t.label: [] for t in trees}
-        for _ in range(repeat):
-            for tree in trees:
+        for k in range(repeat):  # A B, B A, A B, ...: neither tree always goes first
+            for tree in trees if k % 2 == 0 else trees[::-1]:
                 runs[tree.label].append(measure_in_tree(tree, name))
         base, cur = (runs[t.label] for t in trees)
         rows.append(compare_row(name, base, cur, csm.get(name)))
