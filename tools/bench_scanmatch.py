@@ -19,11 +19,10 @@ has never seen). The code used from ``mkflight`` is the public API both trees ha
 The comparison (:func:`compare`) runs baseline and current alternated per dataset
 (``repeat`` rounds: A B, B A, A B, ...), pools each tree's per-scan times, and reports both
 medians and p95s, the CPU time a scan, the ratios current/baseline, both accuracies and
-whether current's is no worse. CSM's
-figures are read from the data README's table (CSM ``sm_icp`` with laser_scan_matcher's
-defaults, measured on a 2-core VM, not in this run): a labelled reference column, with the
-ratio to them. Timings on a shared VM vary by about +-30 % run to run; the alternation
-makes the drift hit both trees alike.
+whether current's is no worse. CSM's figures are read from the data README's table (CSM
+``sm_icp`` with laser_scan_matcher's defaults, measured on a 2-core VM, not in this run): a
+labelled reference column, with the ratio to them. Timings on a shared VM vary by about
++-30 % run to run; the alternation makes the drift hit both trees alike.
 """
 
 from __future__ import annotations
