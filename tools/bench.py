@@ -1,25 +1,43 @@
 """mkflight benchmarks (SPEC §9): medians and ratios against a baseline measured in the same run.
 
-Run: ``pip install -e '.[bench]' && python tools/bench.py`` (``--json`` for machine output).
+Run: ``pip install -e '.[bench]' && python tools/bench.py`` (``--json`` for every raw figure,
+``--only GROUP`` for one group). No remembered figures: every comparison is a ratio between
+two things measured here, now, alternated so that the machine's drift hits both alike.
 
+The groups ``scanmatch``, ``flight`` and ``startup`` compare two code trees
+(``tools/bench_trees.py``): the baseline, a git revision (``--baseline-rev``, default the code
+before the matcher and the daemon's hot path were reworked) extracted into a temporary
+folder, against the tree this file is in; each runs in subprocesses on its own code. Both
+revisions are printed ("dirty": the current tree has uncommitted changes).
+
+* ``scanmatch``: time per scan and relation error on every set of ``../shared/data/laser/``
+  (skipped when absent) and on URG-size scans in unseen random rooms, baseline and current
+  alternated ``--repeat`` times: both medians and p95s, their ratio, both accuracies and
+  whether current's is no worse; CSM's figures from the data README as a labelled
+  reference column (``tools/bench_scanmatch.py``).
+* ``flight``: ``--flight-pairs`` pairs of real-time simulated flights of
+  ``--flight-duration`` s, the two trees alternated: CPU in HOLD (daemon, matcher), CPU per
+  step and per scan, latency median and p99, missed steps, hover precision against the
+  truth, start-up (``tools/bench_flight.py``). ``--flight-compare workers`` flies the
+  current tree with the matcher in its worker process against inline instead; with
+  ``--live``, the live view's cost: flights with ``fly --live`` off and on, a client
+  subscribed to every topic.
+* ``startup``: import time of the flight path and of the matcher per tree (fresh
+  interpreters), and spawn -> READY of ``fly`` (from the ``flight`` group's flights, or
+  from ``--flight-pairs`` pairs of 1 s flights when run alone).
 * ``codec``: MK frames encoded and decoded per second (ExternControl encode with its range
   checks; DebugOut streams through the incremental parser and the SI conversion).
-* ``scanmatch``: time per scan and relation errors on ``../shared/data/laser/`` beside CSM's
-  (``tools/bench_scanmatch.py``), and time per URG-size scan in unseen random rooms.
 * ``latency``: DebugOut arrival -> ExternControl on the wire, over a real pty pair. A
   child process poses as the FlightCtrl on the pty's master end: it writes a DebugOut frame and
   timestamps the moment the answering ExternControl frame can be read back. The host side
   is mkflight's link (serialx, eager writes) and, as the baseline, the same loop on
   pyserial-asyncio (whose transport queues every write for the next event-loop turn).
   Both ends use ``time.perf_counter_ns`` (CLOCK_MONOTONIC), one clock for both processes.
-* ``step``: CPU per flight step (``FlightCore.imu_step``/``laser_step``) in a lock-step hover.
+* ``step``: CPU per flight step (``FlightCore.imu_step``/``laser_step``) in a lock-step
+  hover, current tree only.
 * ``replay``: a recorded flight replayed as fast as it goes, with the recorded scan
-  poses and, as the baseline, with the scan matcher run again (``tools/bench_replay.py``).
-* ``flight``: two real-time simulated flights of ``--flight-duration`` s (default 600): the
-  daemon's latency with ICP running, step timing, missed steps, CPU and precision, with the
-  matcher in its own process against the same flight with ICP on the loop
-  (``tools/bench_flight.py``); with ``--live``, instead, the live view's cost: pairs of
-  flights with ``fly --live`` off and on, a client subscribed to every topic.
+  poses and, as the baseline, through ptys and with the scan matcher run again
+  (``tools/bench_replay.py``), current tree only.
 """
 
 from __future__ import annotations
@@ -32,11 +50,23 @@ import os
 import platform
 import pty
 import statistics
+import subprocess
+import sys
 import time
 import tty
 from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any
+
+from bench_flight import Variant
+from bench_scanmatch import DATASETS, RANDOM_ROOMS
+from bench_trees import (
+    DEFAULT_BASELINE_REV,
+    Tree,
+    UnknownRevisionError,
+    baseline_and_current,
+    load_average,
+)
 
 from mkflight.conversions import MS_PER_S, NS_PER_MS, NS_PER_US, US_PER_S
 from mkflight.mk.codec import FrameParser
@@ -278,12 +308,61 @@ def summarize(values: list[float]) -> dict[str, float]:
     }
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+GROUPS = ("codec", "latency", "scanmatch", "step", "flight", "startup", "replay")
+TREE_GROUPS = ("scanmatch", "flight", "startup")
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument(
-        "--only",
-        choices=("codec", "latency", "scanmatch", "step", "flight", "replay"),
-        help="run one group",
+        "--only", nargs="+", choices=GROUPS, metavar="GROUP", help=f"run these: {', '.join(GROUPS)}"
+    )
+    parser.add_argument(
+        "--baseline-rev",
+        default=DEFAULT_BASELINE_REV,
+        metavar="REV",
+        help=f"the baseline code tree, a git revision (default {DEFAULT_BASELINE_REV})",
+    )
+    parser.add_argument(
+        "--repeat", type=int, default=3, help="scanmatch: alternated runs per tree and dataset"
+    )
+    parser.add_argument(
+        "--datasets",
+        nargs="+",
+        choices=[*DATASETS, RANDOM_ROOMS],
+        metavar="NAME",
+        help=f"scanmatch: these only ({', '.join([*DATASETS, RANDOM_ROOMS])})",
+    )
+    parser.add_argument(
+        "--flight-duration",
+        type=float,
+        default=60.0,
+        metavar="S",
+        help="flight: each simulated flight (real time)",
+    )
+    parser.add_argument("--flight-pairs", type=int, default=3, help="flight: pairs of flights")
+    parser.add_argument(
+        "--worker",
+        choices=("default", "process", "inline"),
+        default="default",
+        help="flight: scanmatch.worker for both trees (default: each tree's own default)",
+    )
+    parser.add_argument(
+        "--flight-compare",
+        choices=("trees", "workers"),
+        default="trees",
+        help="flight: baseline tree against this one, or this tree's matcher in its "
+        "worker process against inline",
+    )
+    parser.add_argument(
+        "--live",
+        action="store_true",
+        help="the 'flight' group measures fly --live instead: off and on alternated in pairs "
+        "of --flight-duration with a client subscribed to every topic",
+    )
+    parser.add_argument("--live-pairs", type=int, default=3, help="--live: pairs of flights")
+    parser.add_argument(
+        "--import-repeat", type=int, default=5, help="startup: fresh interpreters per import"
     )
     parser.add_argument(
         "--replay-source", type=Path, metavar="DIR", help="the 'replay' group's flight folder"
@@ -296,136 +375,193 @@ def main() -> int:
         help="without --replay-source: fly (and keep) a simulated flight this long to replay",
     )
     parser.add_argument("--replay-runs", type=int, default=3, help="replays per variant")
-    parser.add_argument(
-        "--flight-duration",
-        type=float,
-        default=600.0,
-        metavar="S",
-        help="the simulated flight of the 'flight' group (real time)",
-    )
-    parser.add_argument(
-        "--baseline-duration",
-        type=float,
-        metavar="S",
-        help="the 'flight' group's baseline flight (ICP inline; default: --flight-duration)",
-    )
-    parser.add_argument(
-        "--live",
-        action="store_true",
-        help="the 'flight' group measures fly --live instead: off and on alternated in pairs "
-        "of --flight-duration (give it, e.g. 120) with a client subscribed to every topic",
-    )
-    parser.add_argument("--live-pairs", type=int, default=3, help="--live: pairs of flights")
     parser.add_argument("--samples", type=int, default=400, help="latency samples per variant")
     parser.add_argument("--rounds", type=int, default=3, help="alternating rounds per variant")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
-    args = parser.parse_args()
+    return parser.parse_args(argv)
 
-    result: dict[str, Any] = {
-        "machine": f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} cpus",
-        "python": platform.python_version(),
+
+def wanted(args: argparse.Namespace, group: str) -> bool:
+    return args.only is None or group in args.only
+
+
+def run_latency(samples: int, rounds: int) -> dict[str, Any]:
+    """mkflight's link against pyserial-asyncio, idle and loaded, alternated in rounds."""
+    variants: dict[str, Host] = {
+        "mkflight_serialx": host_mkflight,
+        "pyserial_asyncio": host_pyserial_asyncio,
+        "mkflight_serialx+load": with_load(host_mkflight),
+        "pyserial_asyncio+load": with_load(host_pyserial_asyncio),
     }
-    if args.only in (None, "codec"):
-        result["codec"] = bench_codec()
-    if args.only in (None, "latency"):
-        variants: dict[str, Host] = {
-            "mkflight_serialx": host_mkflight,
-            "pyserial_asyncio": host_pyserial_asyncio,
-            "mkflight_serialx+load": with_load(host_mkflight),
-            "pyserial_asyncio+load": with_load(host_pyserial_asyncio),
-        }
-        runs: dict[str, list[float]] = {name: [] for name in variants}
-        cpu: dict[str, list[float]] = {name: [] for name in variants}
-        per_round = max(1, args.samples // args.rounds)
-        for _ in range(args.rounds):  # alternate A B A B: drift hits both alike
-            for name, host in variants.items():
-                latencies, cpu_us = bench_latency(host, per_round, period_s=0.01)
-                runs[name] += latencies
-                cpu[name].append(cpu_us)
-        stats = {name: summarize(v) for name, v in runs.items()}
-        for name in variants:
-            stats[name]["cpu_us_per_sample"] = statistics.median(cpu[name])
-        result["latency_ms"] = stats
-        result["latency_ratio_ours_over_baseline"] = {
+    runs: dict[str, list[float]] = {name: [] for name in variants}
+    cpu: dict[str, list[float]] = {name: [] for name in variants}
+    per_round = max(1, samples // rounds)
+    for _ in range(rounds):  # alternate A B A B: drift hits both alike
+        for name, host in variants.items():
+            latencies, cpu_us = bench_latency(host, per_round, period_s=0.01)
+            runs[name] += latencies
+            cpu[name].append(cpu_us)
+    stats = {name: summarize(v) for name, v in runs.items()}
+    for name in variants:
+        stats[name]["cpu_us_per_sample"] = statistics.median(cpu[name])
+    return {
+        "latency_ms": stats,
+        "latency_ratio_ours_over_baseline": {
             suffix or "idle": {
                 q: stats["mkflight_serialx" + suffix][q] / stats["pyserial_asyncio" + suffix][q]
                 for q in ("median", "p99")
             }
             for suffix in ("", "+load")
-        }
-    if args.only in (None, "step"):
-        result["flight_step_us"] = bench_step()
-    if args.only in (None, "scanmatch"):
-        import bench_scanmatch  # tools/bench_scanmatch.py, beside this file
+        },
+    }
 
-        result["scanmatch"] = bench_scanmatch.run()
-    if args.only in (None, "flight"):
-        import bench_flight  # tools/bench_flight.py, beside this file
 
-        if args.live:
+def flight_variants(trees: tuple[Tree, Tree], compare: str, worker: str) -> tuple[Variant, Variant]:
+    """The two sides of a flight comparison (``--flight-compare``, ``--worker``)."""
+    import bench_flight
+
+    base, cur = trees
+    if compare == "workers":
+        return (
+            bench_flight.Variant("process", cur, ("scanmatch.worker=process",)),
+            bench_flight.Variant("inline", cur, ("scanmatch.worker=inline",)),
+        )
+    settings = () if worker == "default" else (f"scanmatch.worker={worker}",)
+    return (
+        bench_flight.Variant(base.label, base, settings),
+        bench_flight.Variant(cur.label, cur, settings),
+    )
+
+
+def run_tree_groups(args: argparse.Namespace, result: dict[str, Any]) -> None:
+    """The groups that compare the baseline revision with this tree (module docstring)."""
+    import bench_flight
+    import bench_scanmatch
+
+    with baseline_and_current(args.baseline_rev) as trees:
+        result["trees"] = {t.label: t.revision for t in trees}
+        if wanted(args, "scanmatch"):
+            result["scanmatch"] = bench_scanmatch.compare(trees, args.datasets, args.repeat)
+        variants = flight_variants(trees, args.flight_compare, args.worker)
+        flown = None
+        if wanted(args, "flight") and args.live:
             result["flight_live"] = bench_flight.run_live(args.flight_duration, args.live_pairs)
-        else:
-            result["flight"] = bench_flight.run(args.flight_duration, args.baseline_duration)
-    if args.only in (None, "replay"):
+        elif wanted(args, "flight"):
+            flown = bench_flight.run_pairs(variants, args.flight_pairs, args.flight_duration)
+            result["flight"] = flown
+        if wanted(args, "startup"):
+            if args.flight_compare != "trees" or args.live:  # start-up compares the trees
+                variants, flown = flight_variants(trees, "trees", args.worker), None
+            result["startup"] = bench_flight.startup(
+                variants, args.flight_pairs, args.import_repeat, flown
+            )
+
+
+def run_groups(args: argparse.Namespace) -> dict[str, Any]:
+    """Every group asked for, as one dict of raw figures."""
+    result: dict[str, Any] = {
+        "machine": f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} cpus",
+        "python": platform.python_version(),
+        "load_before": load_average(),
+    }
+    if wanted(args, "codec"):
+        result["codec"] = bench_codec()
+    if wanted(args, "latency"):
+        result.update(run_latency(args.samples, args.rounds))
+    if wanted(args, "step"):
+        result["flight_step_us"] = bench_step()
+    if any(wanted(args, g) for g in TREE_GROUPS):
+        run_tree_groups(args, result)
+    if wanted(args, "replay"):
         import bench_replay  # tools/bench_replay.py, beside this file
 
         result["replay"] = bench_replay.run(
             args.replay_source, args.replay_duration, args.replay_runs
         )
-    if args.json:
-        print(json.dumps(result, indent=2))
-        return 0
+    result["load_after"] = load_average()
+    return result
+
+
+def print_latency(result: dict[str, Any]) -> None:
+    print("DebugOut arrival -> ExternControl on the wire, ms (pty pair):")
+    head = f"  {'variant':24s} {'median':>8s} {'p99':>8s} {'max':>8s} {'n':>6s}"
+    print(head + f" {'host CPU us/sample':>19s}")
+    for name, s in result["latency_ms"].items():
+        print(
+            f"  {name:24s} {s['median']:8.3f} {s['p99']:8.3f} {s['max']:8.3f} {s['n']:6.0f}"
+            f" {s['cpu_us_per_sample']:19.0f}"
+        )
+    print("  (+load: another task on the loop burns 2 ms of CPU every 5 ms)")
+    for case, r in result["latency_ratio_ours_over_baseline"].items():
+        print(
+            f"  ratio mkflight/pyserial-asyncio ({case}): "
+            f"median {r['median']:.2f}, p99 {r['p99']:.2f}"
+        )
+
+
+def print_replay(r: dict[str, Any]) -> None:
+    print(f"replay of {r['source']} ({r['fast']['recorded_s']:.0f} s recorded):")
+    print(f"  {'variant':26s} {'wall s':>8s} {'x real time':>12s} {'CPU ms/step':>12s} ok")
+    for name, v in r.items():
+        if isinstance(v, dict):
+            print(
+                f"  {name:26s} {v['wall_s_median']:8.2f} {v['speedup_median']:12.0f}"
+                f" {v['cpu_ms_per_step']:12.3f} {v['deterministic']}"
+            )
+    print(f"  ratio fast/baseline (wall): {r['ratio_fast_over_baseline']:.2f}")
+
+
+def print_text(result: dict[str, Any]) -> None:
+    """The human tables."""
+    import bench_flight
+    import bench_scanmatch
+
     print(f"machine: {result['machine']}, Python {result['python']}")
-    if "codec" in result:
-        for key, value in result["codec"].items():
-            print(f"  {key:34s} {value:12,.0f}")
+    print(
+        f"load average (1/5/15 min): before {result['load_before']}, after {result['load_after']}"
+    )
+    if "trees" in result:
+        for label, revision in result["trees"].items():
+            print(f"{label:8s} tree: {revision}")
+    labels = ("baseline", "current")
+    for key, value in result.get("codec", {}).items():
+        print(f"  {key:34s} {value:12,.0f}")
     if "latency_ms" in result:
-        print("DebugOut arrival -> ExternControl on the wire, ms (pty pair):")
-        head = f"  {'variant':24s} {'median':>8s} {'p99':>8s} {'max':>8s} {'n':>6s}"
-        print(head + f" {'host CPU us/sample':>19s}")
-        for name, s in result["latency_ms"].items():
-            print(
-                f"  {name:24s} {s['median']:8.3f} {s['p99']:8.3f} {s['max']:8.3f} {s['n']:6.0f}"
-                f" {s['cpu_us_per_sample']:19.0f}"
-            )
-        print("  (+load: another task on the loop burns 2 ms of CPU every 5 ms)")
-        for case, r in result["latency_ratio_ours_over_baseline"].items():
-            print(
-                f"  ratio mkflight/pyserial-asyncio ({case}): "
-                f"median {r['median']:.2f}, p99 {r['p99']:.2f}"
-            )
+        print_latency(result)
     if "flight_step_us" in result:
         f = result["flight_step_us"]
         print(
-            "Flight step CPU (a simulated hover): imu_step median "
+            "Flight step CPU (a simulated hover, current tree): imu_step median "
             f"{f['imu_step_median_us']:.0f} us, p99 {f['imu_step_p99_us']:.0f} us; "
             f"laser_step median {f['laser_step_median_us']:.0f} us, "
             f"p99 {f['laser_step_p99_us']:.0f} us"
         )
     if "scanmatch" in result:
-        import bench_scanmatch
-
-        print("Scan matching, per scan (datasets beside CSM's figures from the data README):")
-        print(bench_scanmatch.format_table(result["scanmatch"]))
+        print(bench_scanmatch.format_compare_table(result["scanmatch"], labels))
     if "flight" in result:
-        import bench_flight
-
         print(bench_flight.format_table(result["flight"]))
     if "flight_live" in result:
-        import bench_flight
-
         print(bench_flight.format_live_table(result["flight_live"]))
+    if "startup" in result:
+        print(bench_flight.format_startup(result["startup"], labels))
     if "replay" in result:
-        r = result["replay"]
-        print(f"replay of {r['source']} ({r['fast']['recorded_s']:.0f} s recorded):")
-        print(f"  {'variant':26s} {'wall s':>8s} {'x real time':>12s} {'CPU ms/step':>12s} ok")
-        for name, v in r.items():
-            if isinstance(v, dict):
-                print(
-                    f"  {name:26s} {v['wall_s_median']:8.2f} {v['speedup_median']:12.0f}"
-                    f" {v['cpu_ms_per_step']:12.3f} {v['deterministic']}"
-                )
-        print(f"  ratio fast/baseline (wall): {r['ratio_fast_over_baseline']:.2f}")
+        print_replay(result["replay"])
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    try:
+        result = run_groups(args)
+    except UnknownRevisionError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    except (RuntimeError, subprocess.CalledProcessError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print_text(result)
     return 0
 
 
