@@ -72,5 +72,9 @@ class AttitudeHistory:
         """Pitch and roll of the sample nearest ``t_ns`` (NaN if none)."""
         if not self._samples:
             return math.nan, math.nan
-        best = min(self._samples, key=lambda a: abs(a[0] - t_ns))
+        best, best_dt = self._samples[0], abs(self._samples[0][0] - t_ns)
+        for a in self._samples:  # the first nearest, as min() would (no key call per sample)
+            dt = abs(a[0] - t_ns)
+            if dt < best_dt:
+                best, best_dt = a, dt
         return best[1], best[2]

@@ -71,16 +71,20 @@ def format_row(fmt: TableFormat, values: tuple[Value, ...]) -> str:
     if len(values) != len(fmt.columns):
         msg = f"{fmt.file_name}: expected {len(fmt.columns)} values, got {len(values)}"
         raise ValueError(msg)
-    fields: list[str] = []
-    for name, value in zip(fmt.columns, values, strict=True):
-        if name in fmt.int_columns:
-            if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
-                msg = f"{fmt.file_name}: {name} must be an integer, got {value!r}"
-                raise ValueError(msg)
-            fields.append(str(int(value)))
-        else:
-            fields.append(repr(float(value)))
+    ints = fmt.int_columns
+    fields = [
+        _int_field(fmt, name, value) if name in ints else repr(float(value))
+        for name, value in zip(fmt.columns, values, strict=True)
+    ]
     return " ".join(fields) + "\n"
+
+
+def _int_field(fmt: TableFormat, name: str, value: Value) -> str:
+    """An integer column's text (a float must be integral)."""
+    if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
+        msg = f"{fmt.file_name}: {name} must be an integer, got {value!r}"
+        raise ValueError(msg)
+    return str(int(value))
 
 
 class TableWriter(LineFile):

@@ -236,6 +236,8 @@ EXTERN_FRAME_OFFSET: Final = 9  # the Frame byte inside the 11-byte payload
 def _wire_int(name: str, value: object) -> int:
     """Check one outgoing field: an integral, finite number inside its wire range."""
     lo, hi = _EC_RANGES[name]
+    if type(value) is int and lo <= value <= hi:  # the common case, checked first
+        return value
     if isinstance(value, bool) or not isinstance(value, int | float):
         msg = f"ExternControl.{name} must be a number, got {value!r}"
         raise CommandRangeError(msg)
