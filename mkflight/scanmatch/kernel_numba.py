@@ -194,7 +194,7 @@ def _eigh3(a: FloatArray) -> tuple[FloatArray, FloatArray]:
     return np.array([d[0, 0], d[1, 1], d[2, 2]]), v
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _bisect(sorted_values: FloatArray, m: int, value: float) -> int:
     """First index whose value is >= ``value`` (``np.searchsorted``, side left)."""
     lo, hi = 0, m
@@ -207,7 +207,7 @@ def _bisect(sorted_values: FloatArray, m: int, value: float) -> int:
     return lo
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _before(ux: float, uy: float, qx: float, qy: float) -> int:
     """1: the ray ``u`` lies before the point's bearing, 0: not, -1: cannot tell here.
 
@@ -221,7 +221,7 @@ def _before(ux: float, uy: float, qx: float, qy: float) -> int:
     return 1 if ux * qy - uy * qx > 0.0 else 0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _position(ref: FloatArray, qx: float, qy: float, start: int) -> int:
     """The first centre whose bearing is not before the point's (bisection's answer).
 
@@ -251,7 +251,7 @@ def _position(ref: FloatArray, qx: float, qy: float, start: int) -> int:
     return _bisect(ref[0], m, math.atan2(qy, qx))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _nearest(ref: FloatArray, qx: float, qy: float, gate_m: float, hint: IntArray, i: int) -> int:
     """Index of the reference centre nearest to ``(qx, qy)`` within the gate, or -1.
 
