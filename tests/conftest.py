@@ -27,6 +27,12 @@ def pytest_configure(config: pytest.Config) -> None:
     # A config the developer exported must not reach the commands the tests run: they are
     # written against the built-in defaults (tests/test_config_search.py sets its own).
     os.environ.pop("MKFLIGHT_CONFIG", None)
+    # The scan matcher's compiled kernel: compiled (≈ 30 s on a fresh clone) and cached once
+    # here, before any test starts a flight, so the daemons the tests start load it instead
+    # of each compiling it at the same time.
+    from mkflight.scanmatch.kernels import load_kernel
+
+    load_kernel("auto")
     config.addinivalue_line(
         "markers",
         "shared(path): cross-checks an in-project transcription against ../shared/<path> "
