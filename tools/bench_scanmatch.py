@@ -138,6 +138,9 @@ def bench_dataset(name: str, repeat: int = 1, times: bool = False) -> dict[str, 
     parsed = read_carmen(LASER / log)
     odom_data = read_trajectory(LASER / odom) if odom else None
     times_ms: list[float] = []
+    # Start-up off the clock (imports, the first calls, a compiled kernel's load): each
+    # tree's start-up is the start-up table's, not a per-scan cost.
+    track_records(parsed.records[:3], odom=odom_data)
     cpu0 = time.process_time()
     tracked = track_records(parsed.records, odom=odom_data)
     for _ in range(repeat - 1):
