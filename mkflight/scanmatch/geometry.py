@@ -22,6 +22,7 @@ iteration only the search for the nearest line centre along the bearings.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -34,6 +35,7 @@ from mkflight.scanmatch.kernels import KernelName, load_kernel
 FloatArray = npt.NDArray[np.float64]
 IndexArray = npt.NDArray[np.intp]
 BoolArray = npt.NDArray[np.bool_]
+IntArray64 = npt.NDArray[np.int64]
 Pose = tuple[float, float, float]
 
 IDENTITY: Pose = (0.0, 0.0, 0.0)
@@ -148,6 +150,12 @@ class ReferenceScan:
         return self.rows[3:5].T
 
 
+@functools.lru_cache(maxsize=8)
+def _windows(half_windows: tuple[int, ...]) -> IntArray64:
+    """The half-widths as the kernels' int64 array (one per tuple, shared, only read)."""
+    return np.asarray(half_windows, dtype=np.int64)
+
+
 def build_reference(
     points_xy: FloatArray,
     *,
@@ -180,15 +188,12 @@ def build_reference(
     Returns:
         The reference, or None when fewer than 3 lines could be fitted.
     """
-    pts = np.asarray(points_xy, dtype=np.float64)
+    pts = np.ascontiguousarray(points_xy, dtype=np.float64)
     n = int(pts.shape[0]) if pts.ndim == 2 and pts.shape[1:] == (2,) else 0
-    if n < 5 or not np.isfinite(pts).all():
+    if n < 5 or not math.isfinite(float(pts.sum())):  # a NaN or inf anywhere shows
         return None
-    x = np.ascontiguousarray(pts[:, 0])
-    y = np.ascontiguousarray(pts[:, 1])
-    windows = np.asarray(half_windows, dtype=np.int64)
     rows = load_kernel(kernel).reference_rows(
-        x, y, windows, min_line_length_m, max_gap_m, max_line_rms_m
+        pts, _windows(half_windows), min_line_length_m, max_gap_m, max_line_rms_m
     )
     if rows.shape[1] < 3:
         return None

@@ -166,11 +166,7 @@ def _iterate(
 ) -> _Track | None:
     """Gauss-Newton iterations from ``guess``; None when a step finds too few pairs."""
     out = load_kernel(cfg.kernel).icp_solve(
-        np.ascontiguousarray(pts[:, 0]),
-        np.ascontiguousarray(pts[:, 1]),
-        reference.rows,
-        np.array(guess, dtype=np.float64),
-        _params(cfg),
+        np.ascontiguousarray(pts), reference.rows, np.array(guess, dtype=np.float64), _params(cfg)
     )
     if out[R_FAILED]:
         return None

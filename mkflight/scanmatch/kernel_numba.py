@@ -127,15 +127,14 @@ def fit_lines(
 
 @njit(cache=True, error_model="numpy")
 def reference_rows(
-    x: FloatArray,
-    y: FloatArray,
+    pts: FloatArray,
     half_windows: IntArray,
     min_chord_m: float,
     max_gap_m: float,
     max_rms_m: float,
 ) -> FloatArray:
     """:func:`kernel_numpy.reference_rows`, as loops."""
-    lines = fit_lines(x, y, half_windows, min_chord_m, max_gap_m, max_rms_m)
+    lines = fit_lines(pts[:, 0], pts[:, 1], half_windows, min_chord_m, max_gap_m, max_rms_m)
     n = lines.shape[0]
     m = 0
     for i in range(n):
@@ -414,13 +413,15 @@ def _solve_step(work: FloatArray, n_in: int, params: FloatArray, step: FloatArra
 
 @njit(cache=True, error_model="numpy")
 def icp_solve(
-    px: FloatArray, py: FloatArray, ref: FloatArray, guess: FloatArray, params: FloatArray
+    pts: FloatArray, ref: FloatArray, guess: FloatArray, params: FloatArray
 ) -> FloatArray:
     """:func:`kernel_numpy.icp_solve`, as loops."""
     out = np.zeros(N_RESULTS)
     out[R_RMS] = math.nan
     pose = guess.copy()
     gate_m = params[P_GATE_M]
+    px = pts[:, 0]
+    py = pts[:, 1]
     work = np.empty((5, px.shape[0]))
     hint = np.full(px.shape[0], -1, dtype=np.int64)  # each point's bearing position
     step = np.empty(5)

@@ -170,8 +170,7 @@ def fit_lines(
 
 
 def reference_rows(
-    x: FloatArray,
-    y: FloatArray,
+    pts: FloatArray,
     half_windows: IntArray,
     min_chord_m: float,
     max_gap_m: float,
@@ -179,11 +178,11 @@ def reference_rows(
 ) -> FloatArray:
     """The (7, M) rows of a reference (:class:`~mkflight.scanmatch.geometry.ReferenceScan`).
 
-    The points' lines (:func:`fit_lines`), those that have one, sorted by the bearing of
-    their centre (stable sort): bearing, centre x, y, normal x, y, cos and sin of the
-    bearing.
+    The lines of the (N, 2) C-contiguous points ``pts`` (:func:`fit_lines`), those that
+    have one, sorted by the bearing of their centre (stable sort): bearing, centre x, y,
+    normal x, y, cos and sin of the bearing.
     """
-    lines = fit_lines(x, y, half_windows, min_chord_m, max_gap_m, max_rms_m)
+    lines = fit_lines(pts[:, 0], pts[:, 1], half_windows, min_chord_m, max_gap_m, max_rms_m)
     fitted = lines[lines[:, 4] == 1.0]
     bearing = np.arctan2(fitted[:, 1], fitted[:, 0])
     order = np.argsort(bearing, kind="stable")
@@ -262,13 +261,12 @@ def _trim(
 
 
 def icp_solve(
-    px: FloatArray, py: FloatArray, ref: FloatArray, guess: FloatArray, params: FloatArray
+    pts: FloatArray, ref: FloatArray, guess: FloatArray, params: FloatArray
 ) -> FloatArray:
     """Gauss-Newton iterations from ``guess``; the result array (``R_*`` indices).
 
     Args:
-        px: x of the current scan's points (its own frame), m.
-        py: y of the same, m.
+        pts: (N, 2) C-contiguous points of the current scan (its own frame), m.
         ref: (7, M) reference rows (:class:`~mkflight.scanmatch.geometry.ReferenceScan`).
         guess: (3,) initial pose ``x, y, theta``.
         params: (N_PARAMS,) tuning, ``P_*`` indices.
@@ -283,7 +281,7 @@ def icp_solve(
     gate_m = params[P_GATE_M]
     for _ in range(int(params[P_MAX_ITERATIONS])):
         out[R_ITERATIONS] += 1.0
-        pairs = _pairs(px, py, ref, tree, pose, gate_m)
+        pairs = _pairs(pts[:, 0], pts[:, 1], ref, tree, pose, gate_m)
         if pairs[0].shape[0] < params[P_MIN_MATCHES]:
             out[R_FAILED] = 1.0
             return out

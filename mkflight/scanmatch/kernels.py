@@ -29,8 +29,8 @@ class Kernel:
     """One implementation: its name and its two functions (as in :mod:`kernel_numpy`)."""
 
     name: Literal["numba", "numpy"]
-    reference_rows: Callable[[FloatArray, FloatArray, IntArray, float, float, float], FloatArray]
-    icp_solve: Callable[[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray], FloatArray]
+    reference_rows: Callable[[FloatArray, IntArray, float, float, float], FloatArray]
+    icp_solve: Callable[[FloatArray, FloatArray, FloatArray, FloatArray], FloatArray]
 
 
 NUMPY = Kernel("numpy", kernel_numpy.reference_rows, kernel_numpy.icp_solve)
@@ -41,12 +41,13 @@ def warm_up(kernel: Kernel) -> None:
     t = np.linspace(-1.0, 1.0, 40)
     x = np.concatenate((np.full(40, 2.0), t * 2.0))
     y = np.concatenate((t * 2.0, np.full(40, 2.0)))
-    ref = kernel.reference_rows(x, y, np.array([1, 2, 4], dtype=np.int64), 0.1, 0.5, 0.03)
+    pts = np.ascontiguousarray(np.stack((x, y), axis=1))
+    ref = kernel.reference_rows(pts, np.array([1, 2, 4], dtype=np.int64), 0.1, 0.5, 0.03)
     params = np.array(
         [5, 0.5, 0.2, 0.9, 0.05, 1e-4, 1e-4, 3, 0.2, 0.01, *CONSTANT_PARAMS], dtype=np.float64
     )
     assert params.shape == (N_PARAMS,)
-    kernel.icp_solve(x, y, ref, np.array([0.01, 0.0, 0.0]), params)
+    kernel.icp_solve(pts, ref, np.array([0.01, 0.0, 0.0]), params)
 
 
 @functools.cache

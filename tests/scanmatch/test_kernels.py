@@ -64,10 +64,9 @@ def test_asking_for_numba_without_it_is_a_config_error(monkeypatch: pytest.Monke
 @given(seed=st.integers(0, 10_000), full_turn=st.booleans())
 def test_reference_rows_are_the_same(seed: int, full_turn: bool) -> None:
     pts = room_points(seed, (0.2, -0.1, 0.3), FULL_TURN if full_turn else ANGLES)
-    x, y = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
     windows = np.asarray(LINE_HALF_WINDOWS, dtype=np.int64)
-    a = kernel_numpy.reference_rows(x, y, windows, 0.12, 0.5, 0.03)
-    b = kernel_numba.reference_rows(x, y, windows, 0.12, 0.5, 0.03)
+    a = kernel_numpy.reference_rows(pts, windows, 0.12, 0.5, 0.03)
+    b = kernel_numba.reference_rows(pts, windows, 0.12, 0.5, 0.03)
     assert a.shape == b.shape
     assert a.shape[1] > 100  # lines were fitted: the comparison is not of two empties
     assert np.all(np.diff(a[0]) >= 0.0)  # sorted by bearing
