@@ -34,7 +34,6 @@ points) yields an invalid :class:`MatchResult` with a finite pose, never an exce
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 from typing import Final
@@ -135,13 +134,19 @@ class _Track:
     n_inliers: int = 0
 
 
-@functools.lru_cache(maxsize=8)
+#: The last config's params array, by identity: hashing a config costs more than a match's
+#: bookkeeping, and a flight or a log uses one config throughout.
+_last_params: list[tuple[ScanmatchConfig, FloatArray]] = []
+
+
 def _params(cfg: ScanmatchConfig) -> FloatArray:
     """The tuning as the kernels' ``params`` array, in ``kernel_numpy.P_*`` order.
 
     One array per config, shared: the kernels only read it (a read-only flag would make
     numba compile a second variant of each function).
     """
+    if _last_params and _last_params[0][0] is cfg:
+        return _last_params[0][1]
     params = np.array(
         [
             cfg.max_iterations,
@@ -158,6 +163,7 @@ def _params(cfg: ScanmatchConfig) -> FloatArray:
         ],
         dtype=np.float64,
     )
+    _last_params[:] = [(cfg, params)]
     return params
 
 
