@@ -261,11 +261,12 @@ class FlightCore:
         used = False
         if pose is not None and not degenerate:
             before = self.estimator.counters.pose_rejected
-            self.estimator.on_pose(pose)
+            self.estimator.on_scan(pose, t_ns, height_m)  # = on_pose, then on_height
             used = self.estimator.counters.pose_rejected == before
             if used:
                 self._last_pose_arrival_ns = self._now_ns
-        self.estimator.on_height(t_ns, height_m)
+        else:
+            self.estimator.on_height(t_ns, height_m)
         self.airframe.hat_height(self._now_ns, t_ns, height_m)
         ls = self.estimator.laser_step
         if ls is None or not used:
