@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 from mkflight.config import ControlConfig
 from mkflight.control.limits import all_finite, gas_to_counts
-from mkflight.control.pid import PidGains, PidState, clamp, pid_update
+from mkflight.control.pid import PidGains, PidState, clamp, gains_of_config, pid_update
 
 MIN_TILT_FACTOR = 0.5
 """Floor of cos(theta) cos(phi) in the feed-forward (60 deg of combined tilt)."""
@@ -57,6 +57,7 @@ class AltitudeResult:
     state: AltitudeState
 
 
+@gains_of_config
 def height_gains(control: ControlConfig) -> PidGains:
     """Eq 25's gains: climb-rate output and integral within +-max_climb_mps."""
     lim = control.max_climb_mps
@@ -70,6 +71,7 @@ def height_gains(control: ControlConfig) -> PidGains:
     )
 
 
+@gains_of_config
 def climb_gains(control: ControlConfig) -> PidGains:
     """Eq 23's gains: output = the whole gas in [0, gas_max], integral +-integral_limit_gas."""
     return PidGains(

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 from mkflight.config import ControlConfig, MkConfig
 from mkflight.control.limits import all_finite, angle_to_counts, clamp_norm
-from mkflight.control.pid import PidGains, PidState, pid_update
+from mkflight.control.pid import PidGains, PidState, gains_of_config, pid_update
 from mkflight.frames import world_to_body
 
 
@@ -60,6 +60,7 @@ class PositionResult:
     state: PositionState
 
 
+@gains_of_config
 def position_gains(control: ControlConfig) -> PidGains:
     """The position loop (eq 1-2 plus an integral): kp_xy, ki_xy, kd_xy; no output clamp."""
     # The integral takes up what biases the velocity estimate (an accelerometer bias b
@@ -73,6 +74,7 @@ def position_gains(control: ControlConfig) -> PidGains:
     )
 
 
+@gains_of_config
 def velocity_gains(control: ControlConfig, g_mps2: float) -> PidGains:
     """The velocity PID (eq 21-22), output +-g*max_tilt (m/s^2), integral within that."""
     a_max = g_mps2 * control.max_tilt_rad

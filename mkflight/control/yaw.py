@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from mkflight.config import ControlConfig, MkConfig
 from mkflight.control.limits import all_finite, counts_from_value
-from mkflight.control.pid import PidGains, PidState, pid_update
+from mkflight.control.pid import PidGains, PidState, gains_of_config, pid_update
 from mkflight.frames import wrap_pi
 
 
@@ -28,6 +28,7 @@ class YawResult:
     state: PidState
 
 
+@gains_of_config
 def yaw_gains(control: ControlConfig) -> PidGains:
     """Eq 24's gains; output and integral within +-``control.yaw_max_counts``."""
     lim = float(control.yaw_max_counts)
