@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 from mkflight.config import ControlConfig, MkConfig
 from mkflight.control.altitude import AltitudeResult, AltitudeState, altitude_step
+from mkflight.control.limits import all_finite
 from mkflight.control.pid import PidState
 from mkflight.control.position import PositionResult, PositionState, position_step
 from mkflight.control.yaw import YawResult, yaw_step
@@ -221,6 +222,9 @@ def _invalid_inputs(
     A battery voltage at or below 0 is invalid too.
     """
     pitch_rad, roll_rad = attitude
+    ok_battery = math.isfinite(battery_v) and battery_v > 0.0
+    if ok_battery and _all_inputs_finite(est, setpoint, pitch_rad, roll_rad, mode):
+        return ()  # the usual case, without naming each input
     needed = {
         "est.yaw_rad": est.yaw_rad,
         "est.height_m": est.height_m,
@@ -244,6 +248,26 @@ def _invalid_inputs(
     if not (math.isfinite(battery_v) and battery_v > 0.0):
         bad.append("battery_v")
     return tuple(bad)
+
+
+def _all_inputs_finite(
+    est: Estimate, setpoint: Setpoint, pitch_rad: float, roll_rad: float, mode: ControlMode
+) -> bool:
+    """Every input :func:`_invalid_inputs` checks for ``mode`` finite, but the battery's."""
+    if not all_finite(
+        est.yaw_rad,
+        est.height_m,
+        est.vz_up_mps,
+        setpoint.yaw_rad,
+        setpoint.height_m,
+        setpoint.climb_ff_mps,
+        pitch_rad,
+        roll_rad,
+    ):
+        return False
+    return mode is not ControlMode.POSITION or all_finite(
+        est.x_m, est.y_m, est.vx_mps, est.vy_mps, setpoint.x_m, setpoint.y_m
+    )
 
 
 def _diagnostics(

@@ -53,14 +53,17 @@ class Knot:
 
 def finite(*values: float) -> bool:
     """Every value finite."""
-    return all(math.isfinite(v) for v in values)
+    return all(map(math.isfinite, values))  # no generator's frame: several times a step
 
 
 def knot_finite(k: Knot) -> bool:
     """The knot's state (and the Kalman filter's covariance) finite."""
     if not math.isfinite(k.x_m + k.y_m + k.vx_mps + k.vy_mps + k.h_m + k.vz_up_mps):
         return False
-    return all(a is None or a.finite() for a in (k.kx, k.ky, k.kz))
+    kx, ky, kz = k.kx, k.ky, k.kz
+    return (
+        (kx is None or kx.finite()) and (ky is None or ky.finite()) and (kz is None or kz.finite())
+    )
 
 
 def complementary_knot(

@@ -24,6 +24,7 @@ import math
 from dataclasses import dataclass, replace
 
 from mkflight.control.controller import ControlOutput, Setpoint
+from mkflight.control.limits import all_finite
 from mkflight.control.phases import FLYING_PHASES, Phase, PhaseOutput, PhaseRequests
 from mkflight.conversions import NS_PER_S
 from mkflight.estimation.records import LaserStep
@@ -48,34 +49,22 @@ class PilotSticks:
 
 def finite_estimate(est: Estimate) -> bool:
     """Every float the controllers may use of ``est`` is finite (SPEC §5 row 1)."""
-    return all(
-        math.isfinite(v)
-        for v in (
-            est.x_m,
-            est.y_m,
-            est.yaw_rad,
-            est.height_m,
-            est.vx_mps,
-            est.vy_mps,
-            est.vz_up_mps,
-        )
+    return all_finite(
+        est.x_m, est.y_m, est.yaw_rad, est.height_m, est.vx_mps, est.vy_mps, est.vz_up_mps
     )
 
 
 def finite_imu(imu: ImuSample) -> bool:
     """Every value of the FC's sample is finite and the battery reading is positive."""
     return (
-        all(
-            math.isfinite(v)
-            for v in (
-                imu.pitch_rad,
-                imu.roll_rad,
-                imu.yaw_rad,
-                imu.acc_x_mps2,
-                imu.acc_y_mps2,
-                imu.acc_z_mps2,
-                imu.battery_v,
-            )
+        all_finite(
+            imu.pitch_rad,
+            imu.roll_rad,
+            imu.yaw_rad,
+            imu.acc_x_mps2,
+            imu.acc_y_mps2,
+            imu.acc_z_mps2,
+            imu.battery_v,
         )
         and imu.battery_v > 0
     )
