@@ -23,7 +23,8 @@ cannot command a jump, and the tilt factor is floored at ``min_tilt_factor`` (0.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+
+import msgspec
 
 from mkflight.config import ControlConfig
 from mkflight.control.limits import all_finite, gas_to_counts
@@ -36,16 +37,14 @@ BATTERY_RATIO_LIMITS = (0.8, 1.25)
 """Bounds of hover_voltage_v / battery_v in the feed-forward."""
 
 
-@dataclass(frozen=True, slots=True)
-class AltitudeState:
+class AltitudeState(msgspec.Struct, frozen=True):
     """The height (outer) and vertical-velocity (inner) PIDs' states."""
 
-    height: PidState = field(default_factory=PidState)
-    climb: PidState = field(default_factory=PidState)
+    height: PidState = msgspec.field(default_factory=PidState)
+    climb: PidState = msgspec.field(default_factory=PidState)
 
 
-@dataclass(frozen=True, slots=True)
-class AltitudeResult:
+class AltitudeResult(msgspec.Struct, frozen=True):
     """One altitude step: the climb set-point, the gas parts and the gas byte."""
 
     climb_sp_mps: float

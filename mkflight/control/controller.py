@@ -28,7 +28,8 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, field
+
+import msgspec
 
 from mkflight.config import ControlConfig, MkConfig
 from mkflight.control.altitude import AltitudeResult, AltitudeState, altitude_step
@@ -46,8 +47,7 @@ class ControlMode(enum.Enum):
     LEVEL = "level"
 
 
-@dataclass(frozen=True, slots=True)
-class Setpoint:
+class Setpoint(msgspec.Struct, frozen=True):
     """Where to be, in W (SPEC §1): position, heading (clockwise) and height (up).
 
     ``climb_ff_mps`` is the height set-point's own rate (a ramp's climb/descent), used as
@@ -61,8 +61,7 @@ class Setpoint:
     climb_ff_mps: float = 0.0
 
 
-@dataclass(frozen=True, slots=True)
-class ControlDiagnostics:
+class ControlDiagnostics(msgspec.Struct, frozen=True):
     """Every intermediate of a valid step (all finite), for the logs."""
 
     pitch_sp_rad: float
@@ -80,8 +79,7 @@ class ControlDiagnostics:
     gas_total: float
 
 
-@dataclass(frozen=True, slots=True)
-class ControlOutput:
+class ControlOutput(msgspec.Struct, frozen=True):
     """One step's result: a command and its diagnostics, or ``valid=False`` (see module)."""
 
     valid: bool
@@ -90,13 +88,12 @@ class ControlOutput:
     invalid_inputs: tuple[str, ...] = ()
 
 
-@dataclass(frozen=True, slots=True)
-class ControllerState:
+class ControllerState(msgspec.Struct, frozen=True):
     """All loop states and the timestamp of the last valid update (None before any)."""
 
-    position: PositionState = field(default_factory=PositionState)
-    yaw: PidState = field(default_factory=PidState)
-    altitude: AltitudeState = field(default_factory=AltitudeState)
+    position: PositionState = msgspec.field(default_factory=PositionState)
+    yaw: PidState = msgspec.field(default_factory=PidState)
+    altitude: AltitudeState = msgspec.field(default_factory=AltitudeState)
     last_valid_t_ns: int | None = None
 
 

@@ -24,7 +24,8 @@ Cascade, like PX4's ``PositionControl``:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+
+import msgspec
 
 from mkflight.config import ControlConfig, MkConfig
 from mkflight.control.limits import all_finite, angle_to_counts, clamp_norm
@@ -32,18 +33,16 @@ from mkflight.control.pid import PidGains, PidState, gains_of_config, pid_update
 from mkflight.frames import world_to_body
 
 
-@dataclass(frozen=True, slots=True)
-class PositionState:
+class PositionState(msgspec.Struct, frozen=True):
     """The four PIDs' states: position x/y (outer) and velocity x/y (inner), all in W."""
 
-    pos_x: PidState = field(default_factory=PidState)
-    pos_y: PidState = field(default_factory=PidState)
-    vel_x: PidState = field(default_factory=PidState)
-    vel_y: PidState = field(default_factory=PidState)
+    pos_x: PidState = msgspec.field(default_factory=PidState)
+    pos_y: PidState = msgspec.field(default_factory=PidState)
+    vel_x: PidState = msgspec.field(default_factory=PidState)
+    vel_y: PidState = msgspec.field(default_factory=PidState)
 
 
-@dataclass(frozen=True, slots=True)
-class PositionResult:
+class PositionResult(msgspec.Struct, frozen=True):
     """One step of the horizontal cascade, with every intermediate for the logs."""
 
     vel_sp_x_mps: float

@@ -128,7 +128,7 @@ class Estimator:
         self._pending_pose: tuple[Pose2D, LaserVelocity | None] | None = None
         self._pending_height: tuple[int, float, float | None, int] | None = None
         self._laser_step: LaserStep | None = None
-        self._counts: dict[str, int] = dict.fromkeys(EstimatorCounters.__slots__, 0)
+        self._counts: dict[str, int] = dict.fromkeys(EstimatorCounters.__struct_fields__, 0)
         self._bias_l: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._k_xy = cfg.filter_gain_per_s
         self._k_z = cfg.filter_gain_z_per_s
