@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import bisect
 import math
+import operator
 from dataclasses import replace
 from typing import Final
 
@@ -61,6 +62,7 @@ from mkflight.estimation.knots import (
     Vec2,
     Vec3,
     complementary_knot,
+    copy_knot,
     finite,
     kalman_knot,
     knot_finite,
@@ -81,6 +83,7 @@ from mkflight.msgs import Estimate, ImuSample, Pose2D
 
 START_V_STD_MPS: Final = 0.5
 """The Kalman filter's first velocity is 0, known to this (a vehicle on the floor)."""
+_T_NS: Final = operator.attrgetter("t_ns")  # a knot's time, for bisect (no list of times)
 MISS_V_STD_MPS: Final = 0.1
 """A pose older than the history is carried to now with the velocity estimated then; its
 noise grows by this much per second of age."""
@@ -421,7 +424,7 @@ class Estimator:
         elif t_ns < ks[0].t_ns:
             return None
         else:
-            j = bisect.bisect_right([k.t_ns for k in ks], t_ns) - 1
+            j = bisect.bisect_right(ks, t_ns, key=_T_NS) - 1
         at = ks[j].t_ns == t_ns or j == len(ks) - 1  # the anchor is ks[j]: no new knot
         if at and (j == 0 or ks[j].kx is None or ks[j].kz is None):
             return None
@@ -521,7 +524,7 @@ class Estimator:
             return len(ks) - 1
         if t_ns < ks[0].t_ns:
             return None
-        j = bisect.bisect_right([k.t_ns for k in ks], t_ns) - 1
+        j = bisect.bisect_right(ks, t_ns, key=_T_NS) - 1
         if ks[j].t_ns == t_ns:
             return j
         ks.insert(j + 1, self._propagate(ks[j], _between(ks[j], ks[j + 1], t_ns)))
@@ -592,7 +595,9 @@ class Estimator:
                 std = math.hypot(std, MISS_V_STD_MPS * age_s)
         self._yaw_offset_rad = wrap_pi(yaw - ks[a].mk_yaw_rad)
         if self._kalman:
-            ks[a] = replace(ks[a], fix_xy=(x, y), fix_std_m=std)
+            k = copy_knot(ks[a])
+            k.fix_xy, k.fix_std_m = (x, y), std
+            ks[a] = k
         else:
             meas: Vec2 | None = None
             if vel is not None:
@@ -642,7 +647,9 @@ class Estimator:
         if rate is not None and self._cfg.latency_compensation and not self._kalman:
             t_mid = t_ns - span_ns // 2  # the rate is valid mid-interval
             meas = rate + self._acc_integral_w(t_mid, ks[a].t_ns)[2]
-        ks[a] = replace(ks[a], h_m=h, fix_h=h, meas_z=meas)
+        k = copy_knot(ks[a])
+        k.h_m, k.fix_h, k.meas_z = h, h, meas
+        ks[a] = k
         for m in range(a + 1, len(ks)):
             if ks[m].fix_h is not None:
                 ks[m] = replace(ks[m], fix_h=None)
@@ -689,7 +696,7 @@ class Estimator:
     def _trim(self) -> None:
         """Drop knots older than ``imu_history_s``, keeping one at or before the cut."""
         cut = self._knots[-1].t_ns - round(self._cfg.imu_history_s * NS_PER_S)
-        i = bisect.bisect_left([k.t_ns for k in self._knots], cut)
+        i = bisect.bisect_left(self._knots, cut, key=_T_NS)
         if i > 1:
             del self._knots[: i - 1]
 
