@@ -23,11 +23,12 @@ cannot command a jump, and the tilt factor is floored at ``min_tilt_factor`` (0.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+
+import msgspec
 
 from mkflight.config import ControlConfig
 from mkflight.control.limits import all_finite, gas_to_counts
-from mkflight.control.pid import PidGains, PidState, clamp, pid_update
+from mkflight.control.pid import PidGains, PidState, clamp, gains_of_config, pid_update
 
 MIN_TILT_FACTOR = 0.5
 """Floor of cos(theta) cos(phi) in the feed-forward (60 deg of combined tilt)."""
@@ -36,16 +37,14 @@ BATTERY_RATIO_LIMITS = (0.8, 1.25)
 """Bounds of hover_voltage_v / battery_v in the feed-forward."""
 
 
-@dataclass(frozen=True, slots=True)
-class AltitudeState:
+class AltitudeState(msgspec.Struct, frozen=True):
     """The height (outer) and vertical-velocity (inner) PIDs' states."""
 
-    height: PidState = field(default_factory=PidState)
-    climb: PidState = field(default_factory=PidState)
+    height: PidState = msgspec.field(default_factory=PidState)
+    climb: PidState = msgspec.field(default_factory=PidState)
 
 
-@dataclass(frozen=True, slots=True)
-class AltitudeResult:
+class AltitudeResult(msgspec.Struct, frozen=True):
     """One altitude step: the climb set-point, the gas parts and the gas byte."""
 
     climb_sp_mps: float
@@ -57,6 +56,7 @@ class AltitudeResult:
     state: AltitudeState
 
 
+@gains_of_config
 def height_gains(control: ControlConfig) -> PidGains:
     """Eq 25's gains: climb-rate output and integral within +-max_climb_mps."""
     lim = control.max_climb_mps
@@ -70,6 +70,7 @@ def height_gains(control: ControlConfig) -> PidGains:
     )
 
 
+@gains_of_config
 def climb_gains(control: ControlConfig) -> PidGains:
     """Eq 23's gains: output = the whole gas in [0, gas_max], integral +-integral_limit_gas."""
     return PidGains(

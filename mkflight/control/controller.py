@@ -28,10 +28,12 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, field
+
+import msgspec
 
 from mkflight.config import ControlConfig, MkConfig
 from mkflight.control.altitude import AltitudeResult, AltitudeState, altitude_step
+from mkflight.control.limits import all_finite
 from mkflight.control.pid import PidState
 from mkflight.control.position import PositionResult, PositionState, position_step
 from mkflight.control.yaw import YawResult, yaw_step
@@ -45,8 +47,7 @@ class ControlMode(enum.Enum):
     LEVEL = "level"
 
 
-@dataclass(frozen=True, slots=True)
-class Setpoint:
+class Setpoint(msgspec.Struct, frozen=True):
     """Where to be, in W (SPEC §1): position, heading (clockwise) and height (up).
 
     ``climb_ff_mps`` is the height set-point's own rate (a ramp's climb/descent), used as
@@ -60,8 +61,7 @@ class Setpoint:
     climb_ff_mps: float = 0.0
 
 
-@dataclass(frozen=True, slots=True)
-class ControlDiagnostics:
+class ControlDiagnostics(msgspec.Struct, frozen=True):
     """Every intermediate of a valid step (all finite), for the logs."""
 
     pitch_sp_rad: float
@@ -79,8 +79,7 @@ class ControlDiagnostics:
     gas_total: float
 
 
-@dataclass(frozen=True, slots=True)
-class ControlOutput:
+class ControlOutput(msgspec.Struct, frozen=True):
     """One step's result: a command and its diagnostics, or ``valid=False`` (see module)."""
 
     valid: bool
@@ -89,13 +88,12 @@ class ControlOutput:
     invalid_inputs: tuple[str, ...] = ()
 
 
-@dataclass(frozen=True, slots=True)
-class ControllerState:
+class ControllerState(msgspec.Struct, frozen=True):
     """All loop states and the timestamp of the last valid update (None before any)."""
 
-    position: PositionState = field(default_factory=PositionState)
-    yaw: PidState = field(default_factory=PidState)
-    altitude: AltitudeState = field(default_factory=AltitudeState)
+    position: PositionState = msgspec.field(default_factory=PositionState)
+    yaw: PidState = msgspec.field(default_factory=PidState)
+    altitude: AltitudeState = msgspec.field(default_factory=AltitudeState)
     last_valid_t_ns: int | None = None
 
 
@@ -221,6 +219,9 @@ def _invalid_inputs(
     A battery voltage at or below 0 is invalid too.
     """
     pitch_rad, roll_rad = attitude
+    ok_battery = math.isfinite(battery_v) and battery_v > 0.0
+    if ok_battery and _all_inputs_finite(est, setpoint, pitch_rad, roll_rad, mode):
+        return ()  # the usual case, without naming each input
     needed = {
         "est.yaw_rad": est.yaw_rad,
         "est.height_m": est.height_m,
@@ -244,6 +245,26 @@ def _invalid_inputs(
     if not (math.isfinite(battery_v) and battery_v > 0.0):
         bad.append("battery_v")
     return tuple(bad)
+
+
+def _all_inputs_finite(
+    est: Estimate, setpoint: Setpoint, pitch_rad: float, roll_rad: float, mode: ControlMode
+) -> bool:
+    """Every input :func:`_invalid_inputs` checks for ``mode`` finite, but the battery's."""
+    if not all_finite(
+        est.yaw_rad,
+        est.height_m,
+        est.vz_up_mps,
+        setpoint.yaw_rad,
+        setpoint.height_m,
+        setpoint.climb_ff_mps,
+        pitch_rad,
+        roll_rad,
+    ):
+        return False
+    return mode is not ControlMode.POSITION or all_finite(
+        est.x_m, est.y_m, est.vx_mps, est.vy_mps, setpoint.x_m, setpoint.y_m
+    )
 
 
 def _diagnostics(

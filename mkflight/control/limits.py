@@ -20,7 +20,7 @@ MK_STICK_LIMIT_COUNTS = 127
 
 def all_finite(*values: float) -> bool:
     """True if every value is a finite number (not NaN, not +-inf)."""
-    return all(math.isfinite(v) for v in values)
+    return all(map(math.isfinite, values))  # no generator's frame: several times a step
 
 
 def clamp_norm(x: float, y: float, max_norm: float) -> tuple[float, float, bool]:

@@ -34,6 +34,8 @@ import enum
 import math
 from dataclasses import dataclass, replace
 
+import msgspec
+
 from mkflight.config import ControlConfig
 from mkflight.control.controller import ControlMode, Setpoint
 from mkflight.conversions import S_PER_NS
@@ -94,8 +96,7 @@ class PhaseParams:
         return replace(params, **overrides)  # type: ignore[arg-type]
 
 
-@dataclass(frozen=True, slots=True)
-class PhaseRequests:
+class PhaseRequests(msgspec.Struct, frozen=True):
     """Operator requests and link facts at one step."""
 
     takeoff: bool = False
@@ -114,8 +115,7 @@ class PhaseEvent:
     reason: str
 
 
-@dataclass(frozen=True, slots=True)
-class PhaseState:
+class PhaseState(msgspec.Struct, frozen=True):
     """The phase machine's memory."""
 
     phase: Phase = Phase.PREFLIGHT
@@ -125,8 +125,7 @@ class PhaseState:
     land_since_ns: int | None = None
 
 
-@dataclass(frozen=True, slots=True)
-class PhaseOutput:
+class PhaseOutput(msgspec.Struct, frozen=True):
     """What the flight step does this step.
 
     Attributes:
@@ -305,14 +304,16 @@ def _fly(
         rate = 0.0 if frozen else p.climb_mps
         h = _step_toward(sp.height_m, p.takeoff_height_m, rate * dt_s)
         climb = rate if h != p.takeoff_height_m else 0.0
-        sp = replace(sp, height_m=h, climb_ff_mps=climb)
+        sp = msgspec.structs.replace(sp, height_m=h, climb_ff_mps=climb)
         if h == p.takeoff_height_m:
             return sp, land_since, (Phase.HOLD, "take-off height reached")
         return sp, land_since, None
     if phase is Phase.HOLD:
-        return replace(sp, climb_ff_mps=0.0), land_since, None
+        return msgspec.structs.replace(sp, climb_ff_mps=0.0), land_since, None
     h = _step_toward(sp.height_m, p.land_floor_m, p.land_mps * dt_s)
-    sp = replace(sp, height_m=h, climb_ff_mps=-p.land_mps if h != p.land_floor_m else 0.0)
+    sp = msgspec.structs.replace(
+        sp, height_m=h, climb_ff_mps=-p.land_mps if h != p.land_floor_m else 0.0
+    )
     if not _landed_now(p, est, last_gas_counts):
         return sp, None, None
     land_since = t_ns if land_since is None else land_since

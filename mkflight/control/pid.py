@@ -18,8 +18,11 @@ Eq 24-25 are those of the 2011 QUT CyPhy MikroKopter documentation.
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, TypeVar, cast
 
 from mkflight.frames import wrap_pi
 
@@ -74,6 +77,34 @@ class PidResult:
     d: float
     saturation: int
     valid: bool
+
+
+_Build = TypeVar("_Build", bound=Callable[..., "PidGains"])
+_MEMO_SIZE = 32
+
+
+def gains_of_config(build: _Build) -> _Build:
+    """``build(config, *numbers)`` remembered per config object (and numbers).
+
+    The gains are a pure function of a frozen config, asked for on every step: the same
+    object gives the same gains. The config is kept with them, so that its id is not
+    reused while remembered; a few configs at most (tests make many: the oldest go).
+    """
+    memo: dict[tuple[Any, ...], tuple[object, PidGains]] = {}
+
+    @functools.wraps(build)
+    def gains(cfg: object, *args: Any) -> PidGains:
+        key = (id(cfg), *args)
+        hit = memo.get(key)
+        if hit is not None and hit[0] is cfg:
+            return hit[1]
+        if len(memo) >= _MEMO_SIZE:
+            del memo[next(iter(memo))]
+        g = build(cfg, *args)
+        memo[key] = (cfg, g)
+        return g
+
+    return cast("_Build", gains)
 
 
 def clamp(value: float, lo: float, hi: float) -> float:

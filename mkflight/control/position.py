@@ -24,26 +24,25 @@ Cascade, like PX4's ``PositionControl``:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+
+import msgspec
 
 from mkflight.config import ControlConfig, MkConfig
 from mkflight.control.limits import all_finite, angle_to_counts, clamp_norm
-from mkflight.control.pid import PidGains, PidState, pid_update
+from mkflight.control.pid import PidGains, PidState, gains_of_config, pid_update
 from mkflight.frames import world_to_body
 
 
-@dataclass(frozen=True, slots=True)
-class PositionState:
+class PositionState(msgspec.Struct, frozen=True):
     """The four PIDs' states: position x/y (outer) and velocity x/y (inner), all in W."""
 
-    pos_x: PidState = field(default_factory=PidState)
-    pos_y: PidState = field(default_factory=PidState)
-    vel_x: PidState = field(default_factory=PidState)
-    vel_y: PidState = field(default_factory=PidState)
+    pos_x: PidState = msgspec.field(default_factory=PidState)
+    pos_y: PidState = msgspec.field(default_factory=PidState)
+    vel_x: PidState = msgspec.field(default_factory=PidState)
+    vel_y: PidState = msgspec.field(default_factory=PidState)
 
 
-@dataclass(frozen=True, slots=True)
-class PositionResult:
+class PositionResult(msgspec.Struct, frozen=True):
     """One step of the horizontal cascade, with every intermediate for the logs."""
 
     vel_sp_x_mps: float
@@ -60,6 +59,7 @@ class PositionResult:
     state: PositionState
 
 
+@gains_of_config
 def position_gains(control: ControlConfig) -> PidGains:
     """The position loop (eq 1-2 plus an integral): kp_xy, ki_xy, kd_xy; no output clamp."""
     # The integral takes up what biases the velocity estimate (an accelerometer bias b
@@ -73,6 +73,7 @@ def position_gains(control: ControlConfig) -> PidGains:
     )
 
 
+@gains_of_config
 def velocity_gains(control: ControlConfig, g_mps2: float) -> PidGains:
     """The velocity PID (eq 21-22), output +-g*max_tilt (m/s^2), integral within that."""
     a_max = g_mps2 * control.max_tilt_rad

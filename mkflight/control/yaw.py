@@ -10,16 +10,15 @@ measurement's step too, so crossing +-pi never kicks.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import msgspec
 
 from mkflight.config import ControlConfig, MkConfig
 from mkflight.control.limits import all_finite, counts_from_value
-from mkflight.control.pid import PidGains, PidState, pid_update
+from mkflight.control.pid import PidGains, PidState, gains_of_config, pid_update
 from mkflight.frames import wrap_pi
 
 
-@dataclass(frozen=True, slots=True)
-class YawResult:
+class YawResult(msgspec.Struct, frozen=True):
     """One yaw step: the wrapped error, the rate command (our sign) and the MK counts."""
 
     error_rad: float
@@ -28,6 +27,7 @@ class YawResult:
     state: PidState
 
 
+@gains_of_config
 def yaw_gains(control: ControlConfig) -> PidGains:
     """Eq 24's gains; output and integral within +-``control.yaw_max_counts``."""
     lim = float(control.yaw_max_counts)

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import bisect
 import math
+import operator
 from dataclasses import replace
 from typing import Final
 
@@ -61,6 +62,7 @@ from mkflight.estimation.knots import (
     Vec2,
     Vec3,
     complementary_knot,
+    copy_knot,
     finite,
     kalman_knot,
     knot_finite,
@@ -81,6 +83,7 @@ from mkflight.msgs import Estimate, ImuSample, Pose2D
 
 START_V_STD_MPS: Final = 0.5
 """The Kalman filter's first velocity is 0, known to this (a vehicle on the floor)."""
+_T_NS: Final = operator.attrgetter("t_ns")  # a knot's time, for bisect (no list of times)
 MISS_V_STD_MPS: Final = 0.1
 """A pose older than the history is carried to now with the velocity estimated then; its
 noise grows by this much per second of age."""
@@ -128,7 +131,7 @@ class Estimator:
         self._pending_pose: tuple[Pose2D, LaserVelocity | None] | None = None
         self._pending_height: tuple[int, float, float | None, int] | None = None
         self._laser_step: LaserStep | None = None
-        self._counts: dict[str, int] = dict.fromkeys(EstimatorCounters.__slots__, 0)
+        self._counts: dict[str, int] = dict.fromkeys(EstimatorCounters.__struct_fields__, 0)
         self._bias_l: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._k_xy = cfg.filter_gain_per_s
         self._k_z = cfg.filter_gain_z_per_s
@@ -353,6 +356,83 @@ class Estimator:
             return
         self._apply_height(t_ns, height_m, rate, span_ns)
 
+    def on_scan(self, pose: Pose2D | None, t_ns: int, height_m: float | None) -> None:
+        """A scan's pose (None: none) and hat height, both taken at ``t_ns``.
+
+        The same as :meth:`on_pose` then :meth:`on_height`, bit for bit, with one replay
+        of the knots since the scan instead of two where the Kalman filter allows it: its
+        horizontal and vertical channels are independent, so the pose's replay is the
+        height's horizontally, and the height's replay recomputes every vertical value
+        the pose's replay made. Where that does not hold (the complementary filter, the
+        filter's first fix, a scan older than the history, a rejected input, a state that
+        is not finite) it is :meth:`on_pose` then :meth:`on_height`.
+        """
+        if pose is None:
+            self.on_height(t_ns, height_m)
+            return
+        after = None if height_m is None else self._joint_scan(pose, t_ns, height_m)
+        if height_m is None or after is None:
+            self.on_pose(pose)
+            self.on_height(t_ns, height_m)
+            return
+        saved = list(self._knots)
+        if after >= 0:
+            self._knots.insert(after + 1, _between(saved[after], saved[after + 1], t_ns))
+        before = (self._yaw_offset_rad, self._last_pose, self._last_height)
+        prev, prev_h = self._last_pose, self._last_height
+        vel = None
+        if prev is not None and pose.t_ns - prev.t_ns <= self._max_meas_gap_ns:
+            vel = laser_velocity(prev, pose)
+        self._last_pose = pose
+        rate, span_ns = None, 0
+        if prev_h is not None and t_ns - prev_h[0] <= self._max_meas_gap_ns:
+            rate, span_ns = rate_of_change(prev_h[0], prev_h[1], t_ns, height_m), t_ns - prev_h[0]
+        self._last_height = (t_ns, height_m)
+        a, compensated = self._set_pose_fix(pose, vel)
+        self._set_height_fix(t_ns, height_m, rate, span_ns)
+        ks = self._knots
+        ks[a] = self._propagate(ks[a - 1], ks[a])  # _kalman_fix's case of a started filter
+        if not self._replay(a, saved):  # restored: judged input by input
+            self._yaw_offset_rad, self._last_pose, self._last_height = before
+            self.on_pose(pose)
+            self.on_height(t_ns, height_m)
+            return
+        self._laser_step = self._laser_row(pose, vel, compensated)
+
+    def _joint_scan(self, pose: Pose2D, t_ns: int, height_m: float) -> int | None:
+        """Where :meth:`on_scan` may replay once: the knot after which the scan's goes.
+
+        None: it may not; -1: the scan's knot exists.
+
+        Once: both inputs accepted, on one knot whose predecessor's filter runs in both
+        channels (the case of :meth:`_kalman_fix` that recomputes the knot from its
+        predecessor, which makes a new knot's own state unused: it is inserted bare).
+        """
+        ks = self._knots
+        if not (self._kalman and ks and self._height_started and pose.t_ns == t_ns):
+            return None
+        lim = self._max_abs_position_m
+        if not finite(pose.x_m, pose.y_m, pose.yaw_rad, height_m) or (
+            max(abs(pose.x_m), abs(pose.y_m), abs(height_m)) > lim
+        ):
+            return None
+        prev, prev_h = self._last_pose, self._last_height
+        if (prev is not None and t_ns <= prev.t_ns) or (prev_h is not None and t_ns <= prev_h[0]):
+            return None
+        if not self._cfg.latency_compensation or t_ns >= ks[-1].t_ns:
+            j = len(ks) - 1
+        elif t_ns < ks[0].t_ns:
+            return None
+        else:
+            j = bisect.bisect_right(ks, t_ns, key=_T_NS) - 1
+        at = ks[j].t_ns == t_ns or j == len(ks) - 1  # the anchor is ks[j]: no new knot
+        if at and (j == 0 or ks[j].kx is None or ks[j].kz is None):
+            return None
+        k = ks[j - 1] if at else ks[j]  # the anchor's predecessor
+        if k.kx is None or k.kz is None:
+            return None
+        return -1 if at else j
+
     def estimate(self, now_ns: int | None = None) -> Estimate:
         """The current estimate in W (SPEC §1); validity judged at ``now_ns`` (default: now)."""
         if not self._knots:
@@ -444,13 +524,10 @@ class Estimator:
             return len(ks) - 1
         if t_ns < ks[0].t_ns:
             return None
-        j = bisect.bisect_right([k.t_ns for k in ks], t_ns) - 1
+        j = bisect.bisect_right(ks, t_ns, key=_T_NS) - 1
         if ks[j].t_ns == t_ns:
             return j
-        a, b = ks[j], ks[j + 1]
-        frac = (t_ns - a.t_ns) / (b.t_ns - a.t_ns)
-        mk_yaw = wrap_pi(a.mk_yaw_rad + frac * wrap_pi(b.mk_yaw_rad - a.mk_yaw_rad))
-        ks.insert(j + 1, self._propagate(a, Knot(t_ns, a.acc_l, mk_yaw, z_model=a.z_model)))
+        ks.insert(j + 1, self._propagate(ks[j], _between(ks[j], ks[j + 1], t_ns)))
         return j + 1
 
     def _acc_integral_w(self, t0_ns: int, t1_ns: int) -> tuple[float, float, float]:
@@ -486,6 +563,20 @@ class Estimator:
 
     def _apply_pose(self, pose: Pose2D, vel: LaserVelocity | None) -> None:
         saved, saved_offset = list(self._knots), self._yaw_offset_rad
+        a, compensated = self._set_pose_fix(pose, vel)
+        if self._kalman:
+            a = self._kalman_fix(a, horizontal=True)
+        if not self._replay(a, saved):
+            self._yaw_offset_rad = saved_offset
+            self._counts["pose_rejected"] += 1
+            return
+        self._laser_step = self._laser_row(pose, vel, compensated)
+
+    def _set_pose_fix(self, pose: Pose2D, vel: LaserVelocity | None) -> tuple[int, bool]:
+        """Anchor ``pose`` on its knot and set the yaw offset; the knot's index, compensated.
+
+        The knots after it are not recomputed (the caller replays them).
+        """
         a = self._anchor(pose.t_ns)
         ks = self._knots
         x, y, yaw = pose.x_m, pose.y_m, pose.yaw_rad
@@ -504,7 +595,9 @@ class Estimator:
                 std = math.hypot(std, MISS_V_STD_MPS * age_s)
         self._yaw_offset_rad = wrap_pi(yaw - ks[a].mk_yaw_rad)
         if self._kalman:
-            ks[a] = replace(ks[a], fix_xy=(x, y), fix_std_m=std)
+            k = copy_knot(ks[a])
+            k.fix_xy, k.fix_std_m = (x, y), std
+            ks[a] = k
         else:
             meas: Vec2 | None = None
             if vel is not None:
@@ -517,23 +610,30 @@ class Estimator:
         for m in range(a + 1, len(ks)):  # this newer pose supersedes later predictions
             if ks[m].fix_xy is not None:
                 ks[m] = replace(ks[m], fix_xy=None)
-        if self._kalman:
-            a = self._kalman_fix(a, horizontal=True)
-        if not self._replay(a, saved):
-            self._yaw_offset_rad = saved_offset
-            self._counts["pose_rejected"] += 1
-            return
+        return a, compensated
+
+    def _laser_row(self, pose: Pose2D, vel: LaserVelocity | None, compensated: bool) -> LaserStep:
+        """The TABLE III values of ``pose`` against the estimate after it."""
         est = self.estimate()
         w_vx, w_vy = (math.nan, math.nan) if vel is None else (vel.vx_w_mps, vel.vy_w_mps)
         b_vx, b_vy = world_to_body(w_vx, w_vy, pose.yaw_rad)
         e_vx, e_vy = world_to_body(est.vx_mps, est.vy_mps, est.yaw_rad)
-        self._laser_step = LaserStep(
+        return LaserStep(
             pose.t_ns, w_vx, w_vy, b_vx, b_vy, e_vx, e_vy,
             pose.x_m, pose.y_m, pose.yaw_rad, compensated,
         )  # fmt: skip
 
     def _apply_height(self, t_ns: int, height_m: float, rate: float | None, span_ns: int) -> None:
         saved, saved_started = list(self._knots), self._height_started
+        a = self._set_height_fix(t_ns, height_m, rate, span_ns)
+        if self._kalman:
+            a = self._kalman_fix(a, horizontal=False)
+        if not self._replay(a, saved):
+            self._height_started = saved_started
+            self._counts["height_rejected"] += 1
+
+    def _set_height_fix(self, t_ns: int, height_m: float, rate: float | None, span_ns: int) -> int:
+        """Anchor the height on its knot; the knot's index (the caller replays the rest)."""
         self._height_started = True
         a = self._anchor(t_ns)
         ks = self._knots
@@ -547,15 +647,13 @@ class Estimator:
         if rate is not None and self._cfg.latency_compensation and not self._kalman:
             t_mid = t_ns - span_ns // 2  # the rate is valid mid-interval
             meas = rate + self._acc_integral_w(t_mid, ks[a].t_ns)[2]
-        ks[a] = replace(ks[a], h_m=h, fix_h=h, meas_z=meas)
+        k = copy_knot(ks[a])
+        k.h_m, k.fix_h, k.meas_z = h, h, meas
+        ks[a] = k
         for m in range(a + 1, len(ks)):
             if ks[m].fix_h is not None:
                 ks[m] = replace(ks[m], fix_h=None)
-        if self._kalman:
-            a = self._kalman_fix(a, horizontal=False)
-        if not self._replay(a, saved):
-            self._height_started = saved_started
-            self._counts["height_rejected"] += 1
+        return a
 
     def _kalman_fix(self, a: int, *, horizontal: bool) -> int:
         """Apply the fix just set on knot ``a``; the index to replay the history from.
@@ -598,6 +696,16 @@ class Estimator:
     def _trim(self) -> None:
         """Drop knots older than ``imu_history_s``, keeping one at or before the cut."""
         cut = self._knots[-1].t_ns - round(self._cfg.imu_history_s * NS_PER_S)
-        i = bisect.bisect_left([k.t_ns for k in self._knots], cut)
+        i = bisect.bisect_left(self._knots, cut, key=_T_NS)
         if i > 1:
             del self._knots[: i - 1]
+
+
+def _between(a: Knot, b: Knot, t_ns: int) -> Knot:
+    """A knot's inputs at ``t_ns`` between ``a`` and ``b``, no state yet.
+
+    ``a``'s acceleration held, the MK's yaw interpolated.
+    """
+    frac = (t_ns - a.t_ns) / (b.t_ns - a.t_ns)
+    mk_yaw = wrap_pi(a.mk_yaw_rad + frac * wrap_pi(b.mk_yaw_rad - a.mk_yaw_rad))
+    return Knot(t_ns, a.acc_l, mk_yaw, z_model=a.z_model)

@@ -14,7 +14,8 @@ correction term is left out and the filter integrates the acceleration alone.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+
+import msgspec
 
 from mkflight.conversions import NS_PER_S
 from mkflight.frames import world_to_body, wrap_pi
@@ -44,8 +45,7 @@ def complementary_step(
     return v_hat_mps + dt_s * (correction + acc_mps2)
 
 
-@dataclass(frozen=True, slots=True)
-class LaserVelocity:
+class LaserVelocity(msgspec.Struct, frozen=True):
     """The laser's velocity over the interval between two poses (eq 19, Fig. 17).
 
     ``vx_w_mps``/``vy_w_mps`` are in the world frame W; ``yaw_rate_radps`` is clockwise.

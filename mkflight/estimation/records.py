@@ -5,11 +5,10 @@ TABLE and eq are those of the 2011 QUT CyPhy MikroKopter documentation.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import msgspec
 
 
-@dataclass(frozen=True, slots=True)
-class LaserStep:
+class LaserStep(msgspec.Struct, frozen=True):
     """What the 100 ms log (TABLE III) needs from the last accepted pose.
 
     ``w_vel_*`` is the laser velocity in W (eq 19), ``b_vel_*`` the same in the heading
@@ -33,8 +32,7 @@ class LaserStep:
     compensated: bool
 
 
-@dataclass(frozen=True, slots=True)
-class EstimatorCounters:
+class EstimatorCounters(msgspec.Struct, frozen=True):
     """Counts of inputs the estimator refused or could not use (for ``flight.json``)."""
 
     imu_rejected: int = 0

@@ -42,7 +42,9 @@ The shell (daemon, simulator, replay) owns ports, time and files; it only moves 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
+
+import msgspec
 
 from mkflight.config import Config
 from mkflight.control.controller import Controller, ControlMode, Setpoint
@@ -101,8 +103,7 @@ MAX_HOLD_OFFSET_M = 1.0
 """The largest HOLD set-point offset :meth:`FlightCore.set_hold_offset` accepts."""
 
 
-@dataclass(frozen=True, slots=True)
-class ImuStepOutput:
+class ImuStepOutput(msgspec.Struct, frozen=True):
     """What one 50 ms step decided.
 
     Attributes:
@@ -225,7 +226,7 @@ class FlightCore:
             return Command(t_ns, 0, 0, 0, 0, take_control=False)  # the pilot's sticks rule
         if out.on_floor and self.phase_state.phase is Phase.LAND:
             event = PhaseEvent(t_ns, Phase.LAND, Phase.LANDED, out.note or "floor found")
-            self.phase_state = replace(
+            self.phase_state = msgspec.structs.replace(
                 self.phase_state, phase=Phase.LANDED, phase_start_ns=t_ns, setpoint=None
             )
             self._pending_phase_events.append(event)
@@ -261,11 +262,12 @@ class FlightCore:
         used = False
         if pose is not None and not degenerate:
             before = self.estimator.counters.pose_rejected
-            self.estimator.on_pose(pose)
+            self.estimator.on_scan(pose, t_ns, height_m)  # = on_pose, then on_height
             used = self.estimator.counters.pose_rejected == before
             if used:
                 self._last_pose_arrival_ns = self._now_ns
-        self.estimator.on_height(t_ns, height_m)
+        else:
+            self.estimator.on_height(t_ns, height_m)
         self.airframe.hat_height(self._now_ns, t_ns, height_m)
         ls = self.estimator.laser_step
         if ls is None or not used:
@@ -454,7 +456,9 @@ class FlightCore:
             self._pending_phase_events.clear()
         if not command.take_control and phase in FLYING_PHASES:
             event = PhaseEvent(t_ns, phase, Phase.RELEASED, "handed to the pilot in the air")
-            self.phase_state = replace(self.phase_state, phase=Phase.RELEASED, setpoint=None)
+            self.phase_state = msgspec.structs.replace(
+                self.phase_state, phase=Phase.RELEASED, setpoint=None
+            )
             phase, phase_events = Phase.RELEASED, (*phase_events, event)
         return phase, phase_events
 

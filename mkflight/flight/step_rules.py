@@ -21,9 +21,11 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, replace
+
+import msgspec
 
 from mkflight.control.controller import ControlOutput, Setpoint
+from mkflight.control.limits import all_finite
 from mkflight.control.phases import FLYING_PHASES, Phase, PhaseOutput, PhaseRequests
 from mkflight.conversions import NS_PER_S
 from mkflight.estimation.records import LaserStep
@@ -36,8 +38,7 @@ TOUCHDOWN_HEIGHT_M = 0.15
 """Below this height in LAND a degenerate scan does not raise the failsafe (touchdown)."""
 
 
-@dataclass(frozen=True, slots=True)
-class PilotSticks:
+class PilotSticks(msgspec.Struct, frozen=True):
     """The pilot's sticks as the FC reports them (logged in TABLE IV), MK counts."""
 
     pitch_counts: int = 0
@@ -48,34 +49,22 @@ class PilotSticks:
 
 def finite_estimate(est: Estimate) -> bool:
     """Every float the controllers may use of ``est`` is finite (SPEC §5 row 1)."""
-    return all(
-        math.isfinite(v)
-        for v in (
-            est.x_m,
-            est.y_m,
-            est.yaw_rad,
-            est.height_m,
-            est.vx_mps,
-            est.vy_mps,
-            est.vz_up_mps,
-        )
+    return all_finite(
+        est.x_m, est.y_m, est.yaw_rad, est.height_m, est.vx_mps, est.vy_mps, est.vz_up_mps
     )
 
 
 def finite_imu(imu: ImuSample) -> bool:
     """Every value of the FC's sample is finite and the battery reading is positive."""
     return (
-        all(
-            math.isfinite(v)
-            for v in (
-                imu.pitch_rad,
-                imu.roll_rad,
-                imu.yaw_rad,
-                imu.acc_x_mps2,
-                imu.acc_y_mps2,
-                imu.acc_z_mps2,
-                imu.battery_v,
-            )
+        all_finite(
+            imu.pitch_rad,
+            imu.roll_rad,
+            imu.yaw_rad,
+            imu.acc_x_mps2,
+            imu.acc_y_mps2,
+            imu.acc_z_mps2,
+            imu.battery_v,
         )
         and imu.battery_v > 0
     )
@@ -146,7 +135,7 @@ def takeoff_gate(requests: PhaseRequests, est: Estimate) -> PhaseRequests:
     """``requests`` without the take-off request unless the pose and height are valid."""
     if est.pose_valid and est.height_valid:
         return requests
-    return replace(requests, takeoff=False)
+    return msgspec.structs.replace(requests, takeoff=False)
 
 
 def hold_setpoint(
@@ -156,7 +145,7 @@ def hold_setpoint(
     if setpoint is None or phase is not Phase.HOLD or offset_m == (0, 0):
         return setpoint
     dx, dy = offset_m
-    return replace(setpoint, x_m=setpoint.x_m + dx, y_m=setpoint.y_m + dy)
+    return msgspec.structs.replace(setpoint, x_m=setpoint.x_m + dx, y_m=setpoint.y_m + dy)
 
 
 class CommandSource(enum.Enum):
@@ -174,8 +163,7 @@ class CommandSource(enum.Enum):
     """No valid command this step: the last one sent again (SPEC §5 row 1)."""
 
 
-@dataclass(frozen=True, slots=True)
-class CommandChoice:
+class CommandChoice(msgspec.Struct, frozen=True):
     """A step's command source and, except for the descent, the command itself.
 
     ``command`` is None exactly when ``source`` is DESCENT: the descent

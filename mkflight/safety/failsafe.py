@@ -47,6 +47,8 @@ import enum
 import math
 from dataclasses import dataclass
 
+import msgspec
+
 from mkflight.config import SafetyConfig
 from mkflight.conversions import S_PER_NS
 
@@ -140,8 +142,7 @@ class TransitionEvent:
     detail: str = ""
 
 
-@dataclass(frozen=True, slots=True)
-class FailsafeOutput:
+class FailsafeOutput(msgspec.Struct, frozen=True):
     """One step's decision.
 
     Attributes:

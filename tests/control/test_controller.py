@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
+import msgspec
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -133,7 +133,7 @@ def test_every_command_within_limits_or_invalid(
             assert out.diagnostics is not None
             assert command_within_limits(out.command, CTRL, counts_per_rad=MK.counts_per_rad)
             d = out.diagnostics
-            assert all(math.isfinite(getattr(d, f.name)) for f in dataclasses.fields(d))
+            assert all(math.isfinite(getattr(d, f.name)) for f in msgspec.structs.fields(d))
             assert math.hypot(d.pitch_sp_rad, d.roll_sp_rad) <= CTRL.max_tilt_rad + 1e-12
             assert 0 <= out.command.gas_counts <= CTRL.gas_max
         else:
