@@ -183,9 +183,11 @@ async def watchdog_task(
 def watch_sleep_s(
     now_ns: int, *, status_in_s: float, duration_end_ns: int | None, stop: StopLatch
 ) -> float:
-    """How long the watchdog may sleep: until the status line, ``--duration`` or the
-    stop deadline is due, but at least :data:`WATCH_PERIOD_S` (the old polling period:
-    nothing is noticed later than it was) and at most :data:`STATUS_PERIOD_S`.
+    """How long the watchdog may sleep: until the next thing it watches is due.
+
+    That is the status line, ``--duration`` or the stop deadline, but at least
+    :data:`WATCH_PERIOD_S` (so nothing is noticed later than by a 50 ms poll) and at
+    most :data:`STATUS_PERIOD_S`.
     """
     due_s = status_in_s
     if duration_end_ns is not None and stop.request is None:

@@ -123,8 +123,10 @@ class LineFile:
 
     @property
     def flush_each_line(self) -> bool:
-        """Flush every line (a flight: a killed process loses nothing); a replay, which
-        can write its folder again, sets it False and writes in blocks."""
+        """Flush every line: a flight's (a killed process loses nothing).
+
+        A replay, which can write its folder again, sets it False and writes in blocks.
+        """
         return self._pending is None
 
     @flush_each_line.setter

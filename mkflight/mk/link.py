@@ -114,8 +114,11 @@ class MkLink:
     # ----- lifecycle -------------------------------------------------------------------
 
     def start(self) -> None:
-        """Start reading (idempotent): in the port's own callback if it offers one, else
-        in a reader task."""
+        """Start reading (idempotent).
+
+        In the port's own callback if it offers one (:class:`PushStream`), else in a
+        reader task.
+        """
         if self._closing is not None or self._pushed:
             return
         if isinstance(self._stream, PushStream):

@@ -151,7 +151,9 @@ class CommandSender:
             raise LinkError(msg)
         frame_no = self._frame_no = self._frame_no % 255 + 1
         data = _encode_extern(
-            packed[:EXTERN_FRAME_OFFSET] + _FRAME_BYTES[frame_no] + packed[EXTERN_FRAME_OFFSET + 1 :]
+            packed[:EXTERN_FRAME_OFFSET]
+            + _FRAME_BYTES[frame_no]
+            + packed[EXTERN_FRAME_OFFSET + 1 :]
         )
         if self.pending_confirms:
             self._expire_confirms(self._clock.now_ns())
@@ -164,9 +166,13 @@ class CommandSender:
         s = self._settings
         stick_max = s.stick_max_counts
         nick, roll, yaw, gas = command.nick, command.roll, command.yaw, command.gas
-        if -stick_max <= nick <= stick_max and -stick_max <= roll <= stick_max:
-            if -stick_max <= yaw <= stick_max and 0 <= gas <= s.gas_max:
-                return  # the common case: pack() has checked that they are whole numbers
+        if (
+            -stick_max <= nick <= stick_max
+            and -stick_max <= roll <= stick_max
+            and -stick_max <= yaw <= stick_max
+            and 0 <= gas <= s.gas_max
+        ):
+            return  # the common case: pack() has checked that they are whole numbers
         for name in ("nick", "roll", "yaw"):
             value = getattr(command, name)
             if abs(value) > stick_max:
