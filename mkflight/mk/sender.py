@@ -51,6 +51,10 @@ log = structlog.get_logger("mkflight.mk")
 
 CONFIRM_TIMEOUT_NS = NS_PER_S  # a confirm not back within this is counted lost
 RELEASE_CONFIRM_WAIT_S = 0.1  # wait for the last release frame's confirm (behind a DebugOut)
+#: Time left below this is none: a timer that short is due at once (the loop's clock
+#: resolution), so a replay's lock-step clock, which moves only when the loop idles,
+#: would never move past a deadline a rounding error away.
+TIME_EPS_S = 1e-6
 _encode_extern = FrameEncoder(ADDR_FC, CMD_EXTERN)
 _FRAME_BYTES = tuple(bytes((n,)) for n in range(256))  # the Frame byte of each number
 
@@ -224,7 +228,7 @@ class CommandSender:
             self._check_failed()
             self._confirm_event.clear()
             left_s = deadline - loop.time()
-            if left_s <= 0:
+            if left_s <= TIME_EPS_S:  # less is float rounding: a lock-step loop never gets there
                 return False
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._confirm_event.wait(), min(left_s, 0.01))
