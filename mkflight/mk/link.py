@@ -90,6 +90,7 @@ class MkLink:
         self._port_dead = False  # the stream itself failed: nothing can be written
         self._reader: asyncio.Task[None] | None = None
         self._pushed = False  # the stream hands chunks to _on_chunk (no reader task)
+        self._push: PushStream | None = _push_stream(stream)
         self._closing: asyncio.Task[None] | None = None
         self._tx = CommandSender(
             self._write_now,
@@ -121,9 +122,9 @@ class MkLink:
         """
         if self._closing is not None or self._pushed:
             return
-        if isinstance(self._stream, PushStream):
+        if self._push is not None:
             self._pushed = True  # each chunk parsed as it arrives: no task woken per chunk
-            self._stream.deliver_to(self._on_chunk, self._on_end)
+            self._push.deliver_to(self._on_chunk, self._on_end)
             return
         if self._reader is None or self._reader.done():
             self._reader = asyncio.get_running_loop().create_task(
@@ -243,6 +244,7 @@ class MkLink:
             log_event="mk_reopen_retry",
             now_ns=self._clock.now_ns,
         )
+        self._push = _push_stream(self._stream)
         self._parser.reset()
         self._error = None
         self._port_dead = False
@@ -299,9 +301,8 @@ class MkLink:
 
     def _stop_pushing(self) -> None:
         self._pushed = False
-        stream = self._stream
-        if isinstance(stream, PushStream):
-            stream.deliver_to(None, None)
+        if self._push is not None:
+            self._push.deliver_to(None, None)
 
     def _dispatch(self, frame: Frame, t_ns: int) -> None:
         stats = self.stats
@@ -445,3 +446,8 @@ class MkLink:
         self.stats.bytes_written += len(data)
         if self._tap is not None:
             self._tap("w", t_ns, data)
+
+
+def _push_stream(stream: ByteStream) -> PushStream | None:
+    """``stream`` if it hands chunks over as they arrive (asked once: a costly check)."""
+    return stream if isinstance(stream, PushStream) else None
