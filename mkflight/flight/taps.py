@@ -18,7 +18,15 @@ from mkflight.logs.raw import RawRecorder
 class PortTaps:
     """Both ports' taps and 'o'/'c' marks, recorded and told to the policy."""
 
-    __slots__ = ("_clock", "_policy", "_recorders", "_stats", "command_written_ns")
+    __slots__ = (
+        "_clock",
+        "_laser_raw",
+        "_mk_raw",
+        "_policy",
+        "_recorders",
+        "_stats",
+        "command_written_ns",
+    )
 
     def __init__(
         self,
@@ -30,6 +38,7 @@ class PortTaps:
         stats: StepStats,
     ) -> None:
         self._recorders = {"mk": mk_raw, "laser": laser_raw}
+        self._mk_raw, self._laser_raw = mk_raw, laser_raw
         self._clock = clock
         self._policy = policy
         self._stats = stats
@@ -38,16 +47,17 @@ class PortTaps:
 
     def mk(self, direction: str, t_ns: int, data: bytes) -> None:
         """The MK port's tap: record, note a command or a subscription written."""
-        self._recorders["mk"](direction, t_ns, data)
-        if direction == "w" and data[1:3] == b"bb":
-            self.command_written_ns = t_ns
-        elif direction == "w" and data[2:3] == b"d":
-            self._stats.on_resubscribe()  # the FC answers at once and restarts its period
+        self._mk_raw(direction, t_ns, data)
+        if direction == "w":
+            if data[1:3] == b"bb":
+                self.command_written_ns = t_ns
+            elif data[2:3] == b"d":
+                self._stats.on_resubscribe()  # the FC answers at once and restarts its period
         self._policy.on_bytes("mk", direction, len(data))
 
     def laser(self, direction: str, t_ns: int, data: bytes) -> None:
         """The laser port's tap: record."""
-        self._recorders["laser"](direction, t_ns, data)
+        self._laser_raw(direction, t_ns, data)
         self._policy.on_bytes("laser", direction, len(data))
 
     def mark(self, port: str, kind: str, text: str) -> None:

@@ -8,7 +8,7 @@
   delays a command; each result goes into the
   :class:`~mkflight.flight.laser_inbox.LaserInbox` for the next step;
 * :func:`watchdog_task` - a timer that only watches: ``--duration``, the stop deadline,
-  the status line and systemd's STATUS;
+  the status line and systemd's STATUS; it wakes when one of them is due;
 * :func:`supervise` - runs them together: a crash of the laser or watchdog task lands
   the vehicle, the MK task's end ends all.
 
@@ -153,19 +153,49 @@ async def watchdog_task(
     request_stop: RequestStop,
     show_status: Callable[[], None],
 ) -> None:
-    """``--duration``, the stop deadline, the status line: a timer that only watches."""
+    """``--duration``, the stop deadline, the status line: a timer that only watches.
+
+    It wakes when something is due (:func:`watch_sleep_s`), not every 50 ms: the steps
+    check the stop deadline themselves, this is for when no step comes.
+    """
     next_status = 0.0
     loop = asyncio.get_running_loop()  # its time: the lock-step clock in a replay
+    sleep_s = WATCH_PERIOD_S
     while True:
-        await asyncio.sleep(WATCH_PERIOD_S)
+        await asyncio.sleep(sleep_s)
         now = clock.now_ns()
         elapsed_s = (now - start_ns) / NS_PER_S
         if duration_s is not None and elapsed_s >= duration_s and stop.request is None:
             request_stop(StopRequest.DURATION, f"--duration {duration_s:g} s")
-        stop.check_deadline(clock.now_ns())
+        now = clock.now_ns()
+        stop.check_deadline(now)
         if loop.time() >= next_status:
             next_status = loop.time() + STATUS_PERIOD_S
             show_status()
+        sleep_s = watch_sleep_s(
+            now,
+            status_in_s=next_status - loop.time(),
+            duration_end_ns=None if duration_s is None else start_ns + round(duration_s * NS_PER_S),
+            stop=stop,
+        )
+
+
+def watch_sleep_s(
+    now_ns: int, *, status_in_s: float, duration_end_ns: int | None, stop: StopLatch
+) -> float:
+    """How long the watchdog may sleep: until the next thing it watches is due.
+
+    That is the status line, ``--duration`` or the stop deadline, but at least
+    :data:`WATCH_PERIOD_S` (so nothing is noticed later than by a 50 ms poll) and at
+    most :data:`STATUS_PERIOD_S`.
+    """
+    due_s = status_in_s
+    if duration_end_ns is not None and stop.request is None:
+        due_s = min(due_s, (duration_end_ns - now_ns) / NS_PER_S)
+    if stop.at_ns is not None:
+        deadline_ns = stop.at_ns + round(stop.deadline_s * NS_PER_S)
+        due_s = min(due_s, (deadline_ns - now_ns) / NS_PER_S)
+    return min(STATUS_PERIOD_S, max(WATCH_PERIOD_S, due_s))
 
 
 async def supervise(

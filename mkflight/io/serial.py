@@ -15,7 +15,7 @@ import termios
 from typing import Any
 
 from mkflight.errors import LinkError, PortNotFoundError
-from mkflight.io.stream import ChunkQueue
+from mkflight.io.stream import ChunkQueue, OnData, OnEnd
 
 READ_CHUNK_BYTES = 4096
 
@@ -56,6 +56,13 @@ class SerialStream:
     async def read(self) -> bytes:
         """Next received bytes (raises LinkError once the port is gone)."""
         return await self._protocol.rx.get()
+
+    def deliver_to(self, on_data: OnData | None, on_end: OnEnd | None = None) -> None:
+        """Hand each chunk over as serialx reads it, instead of :meth:`read` (None: stop).
+
+        ``on_end`` is told once when the port is gone (see :meth:`ChunkQueue.deliver_to`).
+        """
+        self._protocol.rx.deliver_to(on_data, on_end)
 
     def write(self, data: bytes) -> None:
         """Hand ``data`` to the kernel now (serialx writes before it buffers)."""

@@ -13,7 +13,7 @@ import asyncio
 import errno
 from collections import deque
 from collections.abc import Awaitable, Callable
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 from mkflight.errors import LinkError
 
@@ -47,6 +47,21 @@ class ByteStream(Protocol):
         ...
 
 
+@runtime_checkable
+class PushStream(ByteStream, Protocol):
+    """A stream that can also hand each chunk over as it arrives (a serial port).
+
+    ``deliver_to(on_data, on_end)``: see :meth:`ChunkQueue.deliver_to`. Only streams
+    whose chunks arrive in an event-loop callback offer it (never inside a write).
+    """
+
+    def deliver_to(
+        self, on_data: Callable[[bytes], None] | None, on_end: Callable[[LinkError], None] | None
+    ) -> None:
+        """Hand each chunk to ``on_data`` as it arrives (None: queue for :meth:`read`)."""
+        ...
+
+
 #: A tap on the raw bytes: (direction 'r' or 'w', host t_ns, data). Used for recordings.
 Tap = Callable[[str, int, bytes], None]
 #: Opens a port again after it vanished (the links' ``reopen``).
@@ -59,14 +74,50 @@ def resolve_waiter(waiter: asyncio.Future[None]) -> None:
         waiter.set_result(None)
 
 
+#: Takes each chunk as it arrives (:meth:`ChunkQueue.deliver_to`).
+OnData = Callable[[bytes], None]
+#: Told once that the stream ended, with the error reads would raise.
+OnEnd = Callable[[LinkError], None]
+
+
 class ChunkQueue:
-    """Received chunks and the one reader waiting for them; ends with an error."""
+    """Received chunks and the one reader waiting for them; ends with an error.
+
+    A reader may instead have each chunk handed over in the callback that brought it
+    (:meth:`deliver_to`): a task woken per chunk costs an event-loop turn per chunk.
+    """
 
     def __init__(self, name: str) -> None:
         self._name = name
         self._chunks: deque[bytes] = deque()
         self._waiter: asyncio.Future[None] | None = None
         self._error: LinkError | None = None
+        self._on_data: OnData | None = None
+        self._on_end: OnEnd | None = None
+
+    def deliver_to(self, on_data: OnData | None, on_end: OnEnd | None = None) -> None:
+        """Hand each chunk to ``on_data`` as it arrives, and the end to ``on_end``.
+
+        Instead of queueing them for :meth:`get`; None queues them again. Whatever was
+        queued before goes to ``on_data`` on the loop's next turn (never inside this
+        call), then the end if the stream has ended.
+        """
+        self._on_data, self._on_end = on_data, on_end
+        if on_data is not None and (self._chunks or self._error is not None):
+            asyncio.get_running_loop().call_soon(self._hand_over, on_data)
+
+    def _hand_over(self, on_data: OnData) -> None:
+        """Queued chunks (and the end) to the receiver set with them (if still set)."""
+        while self._chunks and self._on_data is on_data:
+            on_data(self._chunks.popleft())
+        if self._on_data is on_data and self._error is not None:
+            self._end()
+
+    def _end(self) -> None:
+        on_end = self._on_end
+        self._on_data = self._on_end = None
+        if on_end is not None and self._error is not None:
+            on_end(self._error)
 
     @property
     def error(self) -> LinkError | None:
@@ -76,6 +127,10 @@ class ChunkQueue:
     def put(self, data: bytes) -> None:
         """Append received bytes and wake the reader."""
         if data and self._error is None:
+            on_data = self._on_data
+            if on_data is not None:
+                on_data(data)
+                return
             self._chunks.append(data)
             self._wake()
 
@@ -87,6 +142,8 @@ class ChunkQueue:
         """End the stream: the reader gets what is queued, then ``error``."""
         if self._error is None:
             self._error = error
+        if self._on_data is not None and not self._chunks:
+            self._end()
         self._wake()
 
     def _wake(self) -> None:

@@ -11,11 +11,12 @@ writes (:func:`too_deep`: the code after them recurses).
 
 from __future__ import annotations
 
+import errno
 import os
 import stat
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Final, Self, TextIO
+from typing import Any, BinaryIO, Final, Self
 
 from mkflight.errors import ReplayError
 
@@ -103,15 +104,39 @@ def read_lines(path: Path) -> tuple[list[str], bool]:
     return lines[:-1], lines[-1] != ""
 
 
+#: Lines kept before a write when not flushed one by one (a replay's).
+BLOCK_BYTES: Final = 64 * 1024
+
+
 class LineFile:
-    """A new text file in a flight folder that writes and flushes whole lines."""
+    """A new text file in a flight folder that writes and flushes whole lines.
+
+    Each line goes to the kernel in one ``write`` (the file is unbuffered: nothing
+    between the line and the system call), unless :attr:`flush_each_line` is set False.
+    """
 
     def __init__(self, path: Path, encoding: str) -> None:
         self.path = path
-        self._file: TextIO | None = path.open("x", encoding=encoding, newline="\n")
-        #: flush every line (a flight: a killed process loses nothing); a replay, which
-        #: can write its folder again, sets it False and writes in blocks
-        self.flush_each_line = True
+        self._encoding = encoding
+        self._file: BinaryIO | None = path.open("xb", buffering=0)
+        self._pending: bytearray | None = None  # lines not written yet, when in blocks
+
+    @property
+    def flush_each_line(self) -> bool:
+        """Flush every line: a flight's (a killed process loses nothing).
+
+        A replay, which can write its folder again, sets it False and writes in blocks.
+        """
+        return self._pending is None
+
+    @flush_each_line.setter
+    def flush_each_line(self, value: bool) -> None:
+        if value and self._pending is not None:
+            pending, self._pending = self._pending, None
+            if pending and self._file is not None:
+                self._write(self._file, bytes(pending))
+        elif not value and self._pending is None:
+            self._pending = bytearray()
 
     def write_line(self, line: str) -> None:
         """Append ``line`` (with its newline) and flush it.
@@ -119,12 +144,35 @@ class LineFile:
         Raises:
             RuntimeError: the file is closed.
         """
-        if self._file is None:
+        self.write_encoded(line.encode(self._encoding))
+
+    def write_encoded(self, data: bytes) -> None:
+        """Append one line already encoded (with its newline) and flush it.
+
+        Raises:
+            RuntimeError: the file is closed.
+        """
+        file = self._file
+        if file is None:
             msg = f"{self.path}: writer is closed"
             raise RuntimeError(msg)
-        self._file.write(line)
-        if self.flush_each_line:
-            self._file.flush()
+        pending = self._pending
+        if pending is not None:
+            pending += data
+            if len(pending) < BLOCK_BYTES:
+                return
+            data = bytes(pending)
+            pending.clear()
+        self._write(file, data)
+
+    def _write(self, file: BinaryIO, data: bytes) -> None:
+        """``data`` to the kernel: one system call unless it takes only part."""
+        n = file.write(data)
+        while n != len(data):  # the kernel took part of it (a disk filling up)
+            if not n:
+                raise OSError(errno.EIO, "write accepted no bytes", str(self.path))
+            data = data[n:]
+            n = file.write(data)
 
     @property
     def closed(self) -> bool:
@@ -133,12 +181,16 @@ class LineFile:
 
     def close(self) -> None:
         """Flush, fsync and close (idempotent)."""
-        if self._file is None:
+        file, pending = self._file, self._pending
+        if file is None:
             return
-        self._file.flush()
-        os.fsync(self._file.fileno())
-        self._file.close()
-        self._file = None
+        self._file = self._pending = None
+        try:
+            if pending:
+                self._write(file, bytes(pending))
+            os.fsync(file.fileno())
+        finally:
+            file.close()
 
     def __enter__(self) -> Self:
         return self

@@ -20,6 +20,7 @@ column 2 ``B_Vel.y``; it is the body velocity along x. NaN (no valid value) is w
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from operator import attrgetter
 from pathlib import Path
 
 from mkflight.logs._table import TableData, TableFormat, TableWriter, read_table
@@ -58,6 +59,7 @@ class Table3Row:
 
 _NAMES = tuple(f.name for f in fields(Table3Row))
 """The row's fields in column order (``astuple`` would deep-copy every value)."""
+_values = attrgetter(*_NAMES)  # a row's values in column order, in one call
 
 
 class Table3Writer(TableWriter):
@@ -72,7 +74,7 @@ class Table3Writer(TableWriter):
         Raises:
             ValueError: ``index`` not above the previous row's.
         """
-        self.write_values(tuple(getattr(row, name) for name in _NAMES))  # shallow
+        self.write_values(_values(row))  # shallow
 
 
 def read_table3(path: str | Path) -> TableData:

@@ -94,6 +94,37 @@ def encode_frame(addr: int, cmd: str, payload: bytes = b"") -> bytes:
     return frame
 
 
+#: The longest payload a frame can carry: 4 characters per 3 bytes within MAX_FRAME_BYTES.
+_MAX_PAYLOAD_BYTES = (MAX_FRAME_BYTES - MIN_FRAME_BYTES) // 4 * 3
+
+
+class FrameEncoder:
+    r"""Encodes frames of one address and command (:func:`encode_frame`, checked once).
+
+    The address and command are checked here; a call encodes the payload, sums the
+    checksum and appends ``'\r'`` - what every 50 ms ExternControl needs, no more.
+
+    Raises:
+        ValueError: the address or command cannot form a valid frame.
+    """
+
+    __slots__ = ("_head",)
+
+    def __init__(self, addr: int, cmd: str) -> None:
+        self._head = encode_frame(addr, cmd)[:3]
+
+    def __call__(self, payload: bytes) -> bytes:
+        """The complete frame of ``payload`` (at most 123 bytes: the FC's buffer)."""
+        n = len(payload)
+        if n > _MAX_PAYLOAD_BYTES:  # too long: encode_frame says so
+            return encode_frame(self._head[1] - ord("a"), chr(self._head[2]), payload)
+        if n % 3:
+            payload = payload + bytes(3 - n % 3)
+        head = self._head + binascii.b2a_base64(payload, newline=False).translate(_FROM_STD)
+        crc = sum(head) % 4096
+        return head + bytes((OFFSET + crc // 64, OFFSET + crc % 64, END))
+
+
 @dataclass(slots=True)
 class ParserStats:
     """Counters of everything the parser saw; all of it ends up in ``flight.json``."""

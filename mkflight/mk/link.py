@@ -31,7 +31,7 @@ from mkflight.clock import Clock, MonotonicClock
 from mkflight.conversions import NS_PER_S
 from mkflight.errors import LinkError, ProtocolError
 from mkflight.io.reopen import open_with_backoff
-from mkflight.io.stream import ByteStream
+from mkflight.io.stream import ByteStream, PushStream
 from mkflight.mk.codec import ADDR_FC, Frame, FrameParser
 from mkflight.mk.link_types import LinkSettings, LinkStats, Opener, Tap
 from mkflight.mk.messages import (
@@ -89,6 +89,8 @@ class MkLink:
         self._error: LinkError | None = None  # what consumers get
         self._port_dead = False  # the stream itself failed: nothing can be written
         self._reader: asyncio.Task[None] | None = None
+        self._pushed = False  # the stream hands chunks to _on_chunk (no reader task)
+        self._push: PushStream | None = _push_stream(stream)
         self._closing: asyncio.Task[None] | None = None
         self._tx = CommandSender(
             self._write_now,
@@ -113,8 +115,16 @@ class MkLink:
     # ----- lifecycle -------------------------------------------------------------------
 
     def start(self) -> None:
-        """Start the reader task (idempotent)."""
-        if self._closing is not None:
+        """Start reading (idempotent).
+
+        In the port's own callback if it offers one (:class:`PushStream`), else in a
+        reader task.
+        """
+        if self._closing is not None or self._pushed:
+            return
+        if self._push is not None:
+            self._pushed = True  # each chunk parsed as it arrives: no task woken per chunk
+            self._push.deliver_to(self._on_chunk, self._on_end)
             return
         if self._reader is None or self._reader.done():
             self._reader = asyncio.get_running_loop().create_task(
@@ -189,6 +199,8 @@ class MkLink:
             self._fail(LinkError(f"{self.port}: link closed"))
 
     async def _stop_reader(self) -> None:
+        if self._pushed:
+            self._stop_pushing()
         reader, self._reader = self._reader, None
         if reader is not None and not reader.done():
             reader.cancel()
@@ -232,6 +244,7 @@ class MkLink:
             log_event="mk_reopen_retry",
             now_ns=self._clock.now_ns,
         )
+        self._push = _push_stream(self._stream)
         self._parser.reset()
         self._error = None
         self._port_dead = False
@@ -265,6 +278,31 @@ class MkLink:
             log.exception("mk_reader_crashed", port=self.port)
             self._tx.block("the link's reader crashed")
             self._fail(LinkError(f"{self.port}: reader crashed: {err!r}"))
+
+    def _on_chunk(self, data: bytes) -> None:
+        """A chunk the port handed over as it arrived: what _read_loop does with one."""
+        try:
+            t_ns = self._clock.now_ns()
+            if self._tap is not None:
+                self._tap("r", t_ns, data)
+            for frame in self._parser.feed(data):
+                self._dispatch(frame, t_ns)
+        except Exception as err:  # a bug: as _read_loop's; a later start() reads again
+            self._stop_pushing()
+            log.exception("mk_reader_crashed", port=self.port)
+            self._tx.block("the link's reader crashed")
+            self._fail(LinkError(f"{self.port}: reader crashed: {err!r}"))
+
+    def _on_end(self, err: LinkError) -> None:
+        """The port handed over its end (it vanished, or it was closed)."""
+        self._pushed = False
+        self._port_dead = True
+        self._fail(err)
+
+    def _stop_pushing(self) -> None:
+        self._pushed = False
+        if self._push is not None:
+            self._push.deliver_to(None, None)
 
     def _dispatch(self, frame: Frame, t_ns: int) -> None:
         stats = self.stats
@@ -322,7 +360,7 @@ class MkLink:
     @property
     def closed(self) -> bool:
         """:meth:`close` has stopped the reader: nothing more is read from the port."""
-        return self._closing is not None and self._reader is None
+        return self._closing is not None and self._reader is None and not self._pushed
 
     @property
     def control_blocked(self) -> str | None:
@@ -408,3 +446,8 @@ class MkLink:
         self.stats.bytes_written += len(data)
         if self._tap is not None:
             self._tap("w", t_ns, data)
+
+
+def _push_stream(stream: ByteStream) -> PushStream | None:
+    """``stream`` if it hands chunks over as they arrive (asked once: a costly check)."""
+    return stream if isinstance(stream, PushStream) else None

@@ -231,6 +231,7 @@ _EC_STRUCT = struct.Struct("<BBBbbbBbBBB")
 
 EC_VALID: Final = 0x01  # Config bit 0: take control
 EXTERN_FRAME_OFFSET: Final = 9  # the Frame byte inside the 11-byte payload
+EXTERN_CONFIG_OFFSET: Final = 10  # the Config byte inside the 11-byte payload
 
 
 def _wire_int(name: str, value: object) -> int:

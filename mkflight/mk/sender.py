@@ -34,9 +34,15 @@ import structlog
 from mkflight.clock import Clock
 from mkflight.conversions import NS_PER_S
 from mkflight.errors import CommandRangeError, LinkError
-from mkflight.mk.codec import ADDR_FC, encode_frame
+from mkflight.mk.codec import ADDR_FC, FrameEncoder
 from mkflight.mk.link_types import LinkSettings, LinkStats
-from mkflight.mk.messages import CMD_EXTERN, EC_VALID, EXTERN_FRAME_OFFSET, ExternControl
+from mkflight.mk.messages import (
+    CMD_EXTERN,
+    EC_VALID,
+    EXTERN_CONFIG_OFFSET,
+    EXTERN_FRAME_OFFSET,
+    ExternControl,
+)
 from mkflight.mk.outbox import Outbox, Writer
 
 __all__ = ["CONFIRM_TIMEOUT_NS", "RELEASE_CONFIRM_WAIT_S", "CommandSender"]
@@ -45,6 +51,12 @@ log = structlog.get_logger("mkflight.mk")
 
 CONFIRM_TIMEOUT_NS = NS_PER_S  # a confirm not back within this is counted lost
 RELEASE_CONFIRM_WAIT_S = 0.1  # wait for the last release frame's confirm (behind a DebugOut)
+#: Time left below this is none: a timer that short is due at once (the loop's clock
+#: resolution), so a replay's lock-step clock, which moves only when the loop idles,
+#: would never move past a deadline a rounding error away.
+TIME_EPS_S = 1e-6
+_encode_extern = FrameEncoder(ADDR_FC, CMD_EXTERN)
+_FRAME_BYTES = tuple(bytes((n,)) for n in range(256))  # the Frame byte of each number
 
 
 class CommandSender:
@@ -135,30 +147,43 @@ class CommandSender:
     def send_extern_control(self, command: ExternControl) -> int:
         """Check, number and send one ExternControl; return its Frame number (see MkLink)."""
         self._check_writable()
-        payload = bytearray(command.pack())  # range-checks every field, or raises
+        packed = command.pack()  # range-checks every field, or raises
         self._check_limits(command)
-        takes_control = bool(payload[10] & EC_VALID)
+        takes_control = bool(packed[EXTERN_CONFIG_OFFSET] & EC_VALID)
         if takes_control and self._blocked is not None:
             msg = f"{self._port}: not taking control: {self._blocked}"
             raise LinkError(msg)
-        self._frame_no = self._frame_no % 255 + 1
-        payload[EXTERN_FRAME_OFFSET] = self._frame_no
-        data = encode_frame(ADDR_FC, CMD_EXTERN, bytes(payload))
-        self._expire_confirms(self._clock.now_ns())
-        self.send("b", data, self._frame_no)
+        frame_no = self._frame_no = self._frame_no % 255 + 1
+        data = _encode_extern(
+            packed[:EXTERN_FRAME_OFFSET]
+            + _FRAME_BYTES[frame_no]
+            + packed[EXTERN_FRAME_OFFSET + 1 :]
+        )
+        if self.pending_confirms:
+            self._expire_confirms(self._clock.now_ns())
+        self.send("b", data, frame_no)
         self._engaged = self._engaged or takes_control
         self._stats.commands_sent += 1
-        return self._frame_no
+        return frame_no
 
     def _check_limits(self, command: ExternControl) -> None:
         s = self._settings
+        stick_max = s.stick_max_counts
+        nick, roll, yaw, gas = command.nick, command.roll, command.yaw, command.gas
+        if (
+            -stick_max <= nick <= stick_max
+            and -stick_max <= roll <= stick_max
+            and -stick_max <= yaw <= stick_max
+            and 0 <= gas <= s.gas_max
+        ):
+            return  # the common case: pack() has checked that they are whole numbers
         for name in ("nick", "roll", "yaw"):
             value = getattr(command, name)
-            if abs(value) > s.stick_max_counts:
-                msg = f"ExternControl.{name} = {value} beyond +-{s.stick_max_counts}"
+            if abs(value) > stick_max:
+                msg = f"ExternControl.{name} = {value} beyond +-{stick_max}"
                 raise CommandRangeError(msg)
-        if not 0 <= command.gas <= s.gas_max or not math.isfinite(command.gas):
-            msg = f"ExternControl.gas = {command.gas} outside 0..{s.gas_max} (control.gas_max)"
+        if not 0 <= gas <= s.gas_max or not math.isfinite(gas):
+            msg = f"ExternControl.gas = {gas} outside 0..{s.gas_max} (control.gas_max)"
             raise CommandRangeError(msg)
 
     async def release(self, *, quick: bool = False) -> int:
@@ -203,7 +228,7 @@ class CommandSender:
             self._check_failed()
             self._confirm_event.clear()
             left_s = deadline - loop.time()
-            if left_s <= 0:
+            if left_s <= TIME_EPS_S:  # less is float rounding: a lock-step loop never gets there
                 return False
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._confirm_event.wait(), min(left_s, 0.01))

@@ -20,6 +20,7 @@ from mkflight.flight.stats import StepStats
 from mkflight.flight.status import StatusDisplay, status_line
 from mkflight.flight.stop import StopDeadlineError, StopLatch, stop_signals
 from mkflight.flight.taps import PortTaps
+from mkflight.flight.tasks import STATUS_PERIOD_S, WATCH_PERIOD_S, watch_sleep_s
 from mkflight.logs.raw import RawRecorder, read_raw
 from mkflight.safety.failsafe import StopRequest
 
@@ -148,3 +149,23 @@ def test_taps_record_note_commands_and_tell_the_policy(tmp_path: Path) -> None:
     kinds = [r.kind for r in read_raw(tmp_path / "mk.raw").records]
     assert kinds == ["o", "r", "w", "w"]
     assert [r.data for r in read_raw(tmp_path / "laser.raw").records] == [b"MD0044\n"]
+
+
+def test_the_watchdog_sleeps_until_the_next_thing_it_watches_is_due() -> None:
+    latch = StopLatch(9.0)
+    now = 100 * NS_PER_S
+    # nothing due soon: the status line's period
+    assert watch_sleep_s(now, status_in_s=0.5, duration_end_ns=None, stop=latch) == 0.5
+    # --duration ends in 0.2 s: wake then
+    end = now + int(0.2 * NS_PER_S)
+    assert watch_sleep_s(now, status_in_s=0.5, duration_end_ns=end, stop=latch) == 0.2
+    # due (or past): the old 50 ms poll, never a busy loop
+    assert watch_sleep_s(end, status_in_s=0.5, duration_end_ns=end, stop=latch) == WATCH_PERIOD_S
+    # once a stop is latched --duration no longer matters; its deadline does
+    latch.latch(StopRequest.DURATION, "test", now)
+    far = now + 60 * NS_PER_S
+    assert watch_sleep_s(now, status_in_s=9.9, duration_end_ns=far, stop=latch) == STATUS_PERIOD_S
+    late = now + int(8.9 * NS_PER_S)
+    assert math.isclose(
+        watch_sleep_s(late, status_in_s=0.5, duration_end_ns=far, stop=latch), 0.1, abs_tol=1e-9
+    )

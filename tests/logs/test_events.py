@@ -225,3 +225,19 @@ def test_numpy_scalars_are_written_as_the_numbers_they_hold(tmp_path: Path) -> N
 def test_a_value_json_cannot_hold_is_a_type_error(tmp_path: Path) -> None:
     with EventsWriter(tmp_path) as w, pytest.raises(TypeError, match="'crash'"):
         w.write(Crash(t_ns=1, task="x", error=object()))  # type: ignore[arg-type]
+
+
+def test_lines_in_blocks_reach_the_file_by_close_and_once_flushed(tmp_path: Path) -> None:
+    w = EventsWriter(tmp_path)
+    w.write(Ready(t_ns=1))
+    path = tmp_path / FILE_NAME
+    assert path.read_text() == '{"t_ns":1,"event":"ready"}\n'  # flushed as written
+    w.flush_each_line = False  # a replay's: in blocks
+    w.write(Ready(t_ns=2))
+    assert path.read_text().count("\n") == 1
+    w.flush_each_line = True  # what was held goes now
+    assert path.read_text().count("\n") == 2
+    w.flush_each_line = False
+    w.write(Ready(t_ns=3))
+    w.close()
+    assert [e.t_ns for e in read_events(path).events] == [1, 2, 3]

@@ -22,6 +22,7 @@ from hypothesis import strategies as st
 from mkflight.mk.codec import (
     MAX_FRAME_BYTES,
     Frame,
+    FrameEncoder,
     FrameParser,
     ParserStats,
     checksum,
@@ -530,3 +531,16 @@ def test_overflow_boundary() -> None:
     _frames, over = feed_all([b"#" + b"=" * 169 + b"\r"])
     assert (over.overflows, over.crc_errors, over.malformed) == (1, 0, 0)
     assert over.discarded_bytes == 171
+
+
+@given(frame_args)
+def test_a_frame_encoder_gives_encode_frames_bytes(args: tuple[int, str, bytes]) -> None:
+    addr, cmd, payload = args
+    assert FrameEncoder(addr, cmd)(payload) == encode_frame(addr, cmd, payload)
+
+
+def test_a_frame_encoder_refuses_what_encode_frame_refuses() -> None:
+    with pytest.raises(ValueError, match=r"outside 0\.\.63"):
+        FrameEncoder(64, "b")
+    with pytest.raises(ValueError, match="buffer"):
+        FrameEncoder(1, "b")(bytes(124))
