@@ -150,7 +150,7 @@ def scip_scan(
         echo,
         status,
         timestamp_ms=stamp_ms,
-        values=tuple(v.tolist()),
+        values_mm=v,
         start_step=start,
         end_step=end,
         cluster=cluster,

@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import math
+from bisect import bisect_left
 from collections import deque
 
 from mkflight.flight.laser_pipeline import LaserResult
@@ -57,24 +58,57 @@ class LaserInbox:
 
 
 class AttitudeHistory:
-    """The newest DebugOut (t_ns, pitch, roll) samples, :data:`ATTITUDE_HISTORY` of them."""
+    """The newest DebugOut (t_ns, pitch, roll) samples, :data:`ATTITUDE_HISTORY` of them.
 
-    __slots__ = ("_samples",)
+    Samples come in time order (the link's clock), so :meth:`at` finds the nearest by
+    bisection; :attr:`_descents` counts neighbours out of order in the window, and while
+    there are any, :meth:`at` looks at every sample instead.
+    """
+
+    __slots__ = ("_descents", "_samples")
 
     def __init__(self) -> None:
         self._samples: deque[tuple[int, float, float]] = deque(maxlen=ATTITUDE_HISTORY)
+        self._descents = 0  # i with t[i] < t[i - 1] among the kept samples
 
     def add(self, t_ns: int, pitch_rad: float, roll_rad: float) -> None:
         """Keep one sample's attitude (the oldest is dropped when full)."""
-        self._samples.append((t_ns, pitch_rad, roll_rad))
+        samples = self._samples
+        if len(samples) == ATTITUDE_HISTORY and samples[1][0] < samples[0][0]:
+            self._descents -= 1  # the pair the oldest sample leaves with
+        if samples and t_ns < samples[-1][0]:
+            self._descents += 1
+        samples.append((t_ns, pitch_rad, roll_rad))
 
     def at(self, t_ns: int) -> tuple[float, float]:
-        """Pitch and roll of the sample nearest ``t_ns`` (NaN if none)."""
-        if not self._samples:
+        """Pitch and roll of the sample nearest ``t_ns`` (the first of equals; NaN if none)."""
+        samples = self._samples
+        if not samples:
             return math.nan, math.nan
-        best, best_dt = self._samples[0], abs(self._samples[0][0] - t_ns)
-        for a in self._samples:  # the first nearest, as min() would (no key call per sample)
-            dt = abs(a[0] - t_ns)
-            if dt < best_dt:
-                best, best_dt = a, dt
+        if self._descents:
+            best = _first_nearest(samples, t_ns)
+        else:
+            best = samples[_first_nearest_ordered(samples, t_ns)]
         return best[1], best[2]
+
+
+def _time(sample: tuple[int, float, float]) -> int:
+    return sample[0]
+
+
+def _first_nearest_ordered(samples: deque[tuple[int, float, float]], t_ns: int) -> int:
+    """The index of the first sample nearest ``t_ns`` among samples in time order."""
+    i = bisect_left(samples, t_ns, key=_time)  # samples[i - 1] < t_ns <= samples[i]
+    if i == len(samples) or (i > 0 and t_ns - samples[i - 1][0] <= samples[i][0] - t_ns):
+        return bisect_left(samples, samples[i - 1][0], hi=i, key=_time)  # the first of equals
+    return i
+
+
+def _first_nearest(samples: deque[tuple[int, float, float]], t_ns: int) -> tuple[int, float, float]:
+    """The first sample nearest ``t_ns``, looking at every one (samples out of order)."""
+    best, best_dt = samples[0], abs(samples[0][0] - t_ns)
+    for a in samples:  # the first nearest, as min() would (no key call per sample)
+        dt = abs(a[0] - t_ns)
+        if dt < best_dt:
+            best, best_dt = a, dt
+    return best

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from mkflight.config import Config
+from mkflight.config import Config, LaserConfig
 from mkflight.conversions import NS_PER_S
 from mkflight.msgs import Pose2D, Scan
 from mkflight.scanmatch.geometry import FloatArray, Pose, wrap_angle
@@ -121,6 +121,16 @@ def pose_from_math(pose: Pose) -> Pose:
     return (pose[0], 0.0 - pose[1], 0.0 - wrap_angle(pose[2]))  # 0.0 - v: never -0.0
 
 
+def beam_directions(steps: IntArray) -> tuple[FloatArray, FloatArray]:
+    """``(cos b, sin b)`` of each step's body angle ``b = -(s - 384)·2π/1024`` (SPEC §2).
+
+    They depend on the steps only: :class:`LaserPipeline` computes them once per scan
+    layout and hands them to :func:`level_points`.
+    """
+    b = -(steps.astype(np.float64) - FRONT_STEP) * STEP_RAD
+    return np.cos(b), np.sin(b)
+
+
 def level_points(
     ranges_m: FloatArray,
     steps: IntArray,
@@ -130,6 +140,7 @@ def level_points(
     min_range_m: float,
     max_range_m: float,
     floor_depth_m: float | None = None,
+    directions: tuple[FloatArray, FloatArray] | None = None,
 ) -> FloatArray:
     """The valid beams as level-frame points in the matcher's math frame (x fwd, y left).
 
@@ -147,38 +158,60 @@ def level_points(
         max_range_m: largest valid range (inclusive: DMAX is a distance).
         floor_depth_m: the sensor's height above the floor when known: beams that drop
             below ``FLOOR_FRACTION`` of it are floor hits and are left out.
+        directions: :func:`beam_directions` of ``steps`` when the caller keeps them.
 
     Returns:
         (M, 2) points ``(x forward, y left)`` in metres, M <= N, in step order.
     """
     if not (math.isfinite(pitch_rad) and math.isfinite(roll_rad)):
         pitch_rad = roll_rad = 0.0
-    b = -(steps.astype(np.float64) - FRONT_STEP) * STEP_RAD
-    cb, sb = np.cos(b), np.sin(b)
+    cb, sb = directions if directions is not None else beam_directions(steps)
     cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
     cr, sr = math.cos(roll_rad), math.sin(roll_rad)
-    lx = cp * cb + sp * sr * sb
-    ly = cr * sb
     with np.errstate(invalid="ignore"):
-        ok = np.isfinite(ranges_m) & (ranges_m >= min_range_m) & (ranges_m <= max_range_m)
+        ok = (ranges_m >= min_range_m) & (ranges_m <= max_range_m)
+        if not (math.isfinite(min_range_m) and math.isfinite(max_range_m)):
+            ok &= np.isfinite(ranges_m)  # finite bounds already leave out NaN and inf
         if floor_depth_m is not None and math.isfinite(floor_depth_m):
             lz = -sp * cb + cp * sr * sb
             ok &= ranges_m * lz < FLOOR_FRACTION * floor_depth_m
-    r = ranges_m[ok]
-    return np.stack((r * lx[ok], -(r * ly[ok])), axis=1)
+    # the kept beams only: element by element the same products as over the whole scan;
+    # y = -(r * cr * sb) as r * (-cr * sb), the same number (a sign flip rounds alike)
+    r, cb, sb = ranges_m[ok], cb[ok], sb[ok]
+    lx = cp * cb + sp * sr * sb
+    minus_ly = -cr * sb
+    return np.stack((r * lx, r * minus_ly), axis=1)
 
 
-def _scan_arrays(scan: Scan) -> tuple[FloatArray, IntArray] | str:
-    """The scan's ranges and steps as flat arrays, or why they cannot be had."""
-    try:
-        ranges = np.asarray(scan.ranges_m, dtype=np.float64)
-        if ranges.ndim != 1:
-            return f"bad scan: ranges have shape {ranges.shape}, expected one row"
-        first = int(scan.first_step)
-        steps = np.arange(first, first + ranges.shape[0], dtype=np.int64)
-    except (TypeError, ValueError, OverflowError) as err:
-        return f"bad scan: {err}"
-    return ranges, steps
+@dataclass(frozen=True, slots=True)
+class ScanLayout:
+    """Where the hat and the scan steps lie in a scan of ``n`` beams from ``first_step``.
+
+    The same for every scan of a stream, so built once (:meth:`LaserPipeline._layout`):
+    the hat and scan beams as slices (views, no mask per scan), the scan steps and their
+    :func:`beam_directions`.
+    """
+
+    hat: slice
+    scan: slice
+    scan_steps: IntArray
+    directions: tuple[FloatArray, FloatArray]
+
+    @classmethod
+    def build(cls, first_step: int, n: int, laser: LaserConfig) -> ScanLayout:
+        """The layout of steps ``first_step .. first_step + n - 1`` for ``laser``'s steps."""
+        steps = np.arange(first_step, first_step + n, dtype=np.int64)
+        scan = _within(first_step, n, laser.scan_steps)
+        scan_steps = steps[scan]
+        return cls(
+            _within(first_step, n, laser.hat_steps), scan, scan_steps, beam_directions(scan_steps)
+        )
+
+
+def _within(first_step: int, n: int, bounds: tuple[int, int]) -> slice:
+    """The beams of steps within ``bounds`` (inclusive) in a scan of ``n`` from ``first_step``."""
+    start = min(max(bounds[0] - first_step, 0), n)
+    return slice(start, max(min(bounds[1] - first_step + 1, n), start))
 
 
 def _usable_prior(motion_prior: Pose | None) -> Pose | None:
@@ -189,11 +222,6 @@ def _usable_prior(motion_prior: Pose | None) -> Pose | None:
     if not (math.hypot(dx, dy) <= MAX_PRIOR_STEP_M and abs(dyaw) <= MAX_PRIOR_TURN_RAD):
         return None  # also NaN / inf
     return pose_to_math(motion_prior)
-
-
-def _in(steps: IntArray, bounds: tuple[int, int]) -> npt.NDArray[np.bool_]:
-    """Mask of the steps within ``bounds`` (inclusive)."""
-    return (steps >= bounds[0]) & (steps <= bounds[1])
 
 
 class LaserPipeline:
@@ -211,6 +239,7 @@ class LaserPipeline:
         self._matcher = self._new_matcher()
         self._prev_t_ns: int | None = None
         self._have_reference = False
+        self._last_layout: tuple[tuple[int, int], ScanLayout] | None = None
 
     def _new_matcher(self) -> KeyframeMatcher:
         return KeyframeMatcher(self._scanmatch)
@@ -246,28 +275,28 @@ class LaserPipeline:
             The :class:`LaserResult` of this scan.
         """
         t0_cpu, t0 = time.thread_time(), time.perf_counter()
-        arrays = _scan_arrays(scan)
+        arrays = self._arrays(scan)
         if isinstance(arrays, str):
             ranges: FloatArray = np.empty(0)
-            steps: IntArray = np.empty(0, dtype=np.int64)
+            layout = self._layout(0, 0)
             bad_scan = arrays
         else:
-            (ranges, steps), bad_scan = arrays, ""
+            (ranges, layout), bad_scan = arrays, ""
 
         if not (math.isfinite(pitch_rad) and math.isfinite(roll_rad)):
             # the FC's attitude is garbage: the vehicle flies level (as commanded then)
             pitch_rad = roll_rad = 0.0
-        height_m, height_reason = self._height(ranges, steps, pitch_rad, roll_rad, bad_scan)
-        scan_mask = _in(steps, self._laser.scan_steps)
+        height_m, height_reason = self._height(ranges, layout, pitch_rad, roll_rad, bad_scan)
         floor = None if height_m is None else height_m + self._laser.hat_offset_m
         points = level_points(
-            ranges[scan_mask],
-            steps[scan_mask],
+            ranges[layout.scan],
+            layout.scan_steps,
             pitch_rad,
             roll_rad,
             min_range_m=self._laser.min_range_m,
             max_range_m=self._laser.max_range_m,
             floor_depth_m=floor,
+            directions=layout.directions,
         )
         dt_s = self._scan_interval_s(scan.t_ns)
         update = self._matcher.update(points, motion_prior=_usable_prior(motion_prior), dt_s=dt_s)
@@ -292,21 +321,37 @@ class LaserPipeline:
             elapsed_s=time.perf_counter() - t0,
         )
 
+    def _arrays(self, scan: Scan) -> tuple[FloatArray, ScanLayout] | str:
+        """The scan's ranges as a flat array and its layout, or why they cannot be had."""
+        try:
+            ranges = np.asarray(scan.ranges_m, dtype=np.float64)
+            if ranges.ndim != 1:
+                return f"bad scan: ranges have shape {ranges.shape}, expected one row"
+            layout = self._layout(int(scan.first_step), ranges.shape[0])
+        except (TypeError, ValueError, OverflowError) as err:
+            return f"bad scan: {err}"
+        return ranges, layout
+
+    def _layout(self, first_step: int, n: int) -> ScanLayout:
+        """The layout of this scan: the last one's when the steps are the same (they are)."""
+        if self._last_layout is None or self._last_layout[0] != (first_step, n):
+            self._last_layout = ((first_step, n), ScanLayout.build(first_step, n, self._laser))
+        return self._last_layout[1]
+
     def _height(
         self,
         ranges: FloatArray,
-        steps: IntArray,
+        layout: ScanLayout,
         pitch_rad: float,
         roll_rad: float,
         bad_scan: str,
     ) -> tuple[float | None, str]:
         """The hat height (eq 26) and "", or None and why not."""
-        hat_mask = _in(steps, self._laser.hat_steps)
         if bad_scan:
             return None, bad_scan
-        if not hat_mask.any():
+        if layout.hat.stop == layout.hat.start:
             return None, f"no hat steps {self._laser.hat_steps} in the scan"
-        hat = hat_height(ranges[hat_mask], pitch_rad, roll_rad, self._hat)
+        hat = hat_height(ranges[layout.hat], pitch_rad, roll_rad, self._hat)
         return (hat.height_m if hat.valid else None), hat.reason
 
     def _scan_interval_s(self, t_ns: int) -> float | None:

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from typing import Final
 
 import numpy as np
+import numpy.typing as npt
 
 from mkflight.errors import CommandRangeError
 
@@ -30,6 +31,18 @@ _TAG_RE: Final = re.compile(r"[A-Za-z0-9 ._+@]*")
 # Bytes deleted by this table are the valid encoded characters '0'..'o' (§2.4); what is left
 # after ``data.translate(None, _ENCODED_CHARS)`` is invalid.
 _ENCODED_CHARS: Final = bytes(range(CHAR_OFFSET, CHAR_OFFSET + 64))
+# Each byte to its 6-bit digit (§2.4); a byte outside '0'..'o' to 0xFF, which no digit is.
+_NOT_A_DIGIT: Final = b"\xff"
+_DIGITS: Final = bytes(
+    c - CHAR_OFFSET if CHAR_OFFSET <= c < CHAR_OFFSET + 64 else 0xFF for c in range(256)
+)
+# A 2- or 3-character group's digits, most significant first, weighted by 64**k (§2.4).
+_GROUP_WEIGHTS: Final = {
+    2: np.array([64.0, 1.0]),
+    3: np.array([4096.0, 64.0, 1.0]),
+}
+
+IntArray = npt.NDArray[np.int64]
 
 # Status meanings (§4). Command-specific meanings first, then the general table.
 _STATUS_BY_COMMAND: Final[dict[tuple[str, str], str]] = {
@@ -111,23 +124,43 @@ def encode_values(values: Sequence[int], chars: int) -> bytes:
 
 
 def decode_values(data: bytes | bytearray, chars: int) -> list[int] | None:
-    """Split joined data blocks into values of ``chars`` (2 or 3) characters (§2.5).
+    """Split joined data blocks into values of ``chars`` characters (§2.5).
 
     Returns:
         The values, or None if the length is not a multiple of ``chars`` or a character
         is invalid (the parser then drops the reply as malformed).
     """
     data = bytes(data)
+    if chars in (2, 3):
+        values = decode_array(data, chars)
+        return None if values is None else values.tolist()
     if len(data) % chars or data.translate(None, _ENCODED_CHARS):
         return None
-    if chars in (2, 3):  # vectorised: a scan's 682 values 10x faster than a Python loop
-        d = np.frombuffer(data, dtype=np.uint8).astype(np.int64) - CHAR_OFFSET
-        if chars == 3:
-            values: list[int] = ((d[0::3] << 12) | (d[1::3] << 6) | d[2::3]).tolist()
-        else:
-            values = ((d[0::2] << 6) | d[1::2]).tolist()
-        return values
     return [decode_value(data[i : i + chars]) for i in range(0, len(data), chars)]
+
+
+def decode_array(data: bytes, chars: int) -> IntArray | None:
+    """The values of joined data blocks, ``chars`` (2 or 3) characters each, as an array (§2.5).
+
+    A scan's 682 values without a Python step per value: one table lookup turns every
+    character into its 6-bit digit (and an invalid one into 0xFF), then the digits, viewed
+    as rows of ``chars``, are weighted by 4096, 64 and 1 in one matrix-vector product.
+
+    Returns:
+        The values (int64, read-only), or None if the length is not a multiple of
+        ``chars`` or a character is invalid.
+    """
+    if len(data) % chars:
+        return None
+    digits = data.translate(_DIGITS)
+    if _NOT_A_DIGIT in digits:
+        return None
+    rows = np.frombuffer(digits, dtype=np.uint8).reshape(-1, chars)
+    # in float64 for BLAS (4x fewer instructions than numpy's integer product); every sum
+    # is an integer below 2**18, exact in any order
+    values: IntArray = (rows.astype(np.float64) @ _GROUP_WEIGHTS[chars]).astype(np.int64)
+    values.flags.writeable = False
+    return values
 
 
 def timestamp_line(ms: int) -> bytes:

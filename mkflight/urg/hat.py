@@ -93,22 +93,42 @@ def hat_height(
         return _none("attitude unknown")
     if abs(pitch_rad) > s.max_tilt_rad or abs(roll_rad) > s.max_tilt_rad:
         return _none("tilt too large for the hat")
-    r = np.asarray(ranges_m, dtype=np.float64)
-    good = r[np.isfinite(r) & (r >= s.min_range_m) & (r <= s.max_range_m)]
-    n_valid = int(good.size)
+    r = np.asarray(ranges_m, dtype=np.float64).ravel()
+    low, high = s.min_range_m, s.max_range_m
+    ok = (r >= low) & (r <= high)
+    if not (math.isfinite(low) and math.isfinite(high)):
+        ok &= np.isfinite(r)  # finite bounds already leave out NaN and inf
+    good = r[ok]
+    n_valid = good.size
     if n_valid < max(s.min_beams, math.ceil(s.min_valid_fraction * r.size)):
         return _none(f"{n_valid} of {r.size} hat beams valid", n_valid)
-    median = float(np.median(good))
-    mad = float(np.median(np.abs(good - median)))
+    good.sort()
+    median = _median(good)
+    deviation = np.abs(good - median)
+    mad = _median(np.sort(deviation))
     gate = max(3.0 * MAD_TO_SIGMA * mad, s.inlier_gate_m)
-    inliers = good[np.abs(good - median) <= gate]
-    n_used = int(inliers.size)
+    inliers = good[deviation <= gate]  # sorted, as ``good`` is
+    n_used = inliers.size
     if n_used < max(s.min_beams, math.ceil(s.min_inlier_fraction * n_valid)):
         return _none(f"hat beams disagree ({n_used} of {n_valid} consistent)", n_valid, n_used)
-    spread = MAD_TO_SIGMA * float(np.median(np.abs(inliers - np.median(inliers))))
+    inlier_median = _median(inliers)
+    spread = MAD_TO_SIGMA * _median(np.sort(np.abs(inliers - inlier_median)))
     if spread > s.max_spread_m:
         return _none(f"hat beams spread {spread:.3f} m", n_valid, n_used, spread)
-    height = math.cos(pitch_rad) * math.cos(roll_rad) * float(np.median(inliers)) - s.offset_m
+    height = math.cos(pitch_rad) * math.cos(roll_rad) * inlier_median - s.offset_m
     if height < s.min_height_m:
         return _none(f"implausible height {height:.3f} m", n_valid, n_used, spread)
     return HatHeight(height, True, n_valid, n_used, spread)
+
+
+def _median(ordered: npt.NDArray[np.float64]) -> float:
+    """The median of sorted finite values, as ``np.median`` computes it, bit for bit.
+
+    The middle value, or for an even count the mean of the middle two, ``(a + b) / 2``.
+    ``np.median`` itself costs ~20 numpy calls of overhead: on the hat's 84 beams, many
+    times the arithmetic, four times a scan.
+    """
+    half = ordered.size // 2
+    if ordered.size % 2:
+        return float(ordered[half])
+    return (float(ordered[half - 1]) + float(ordered[half])) / 2

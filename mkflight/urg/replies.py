@@ -26,12 +26,16 @@ import re
 from dataclasses import dataclass, field
 from typing import Final
 
+import numpy as np
+
 from mkflight.urg.codec import (
     BLOCK_CHARS,
+    CHAR_OFFSET,
     SCIP2_COMMAND,
+    IntArray,
     chars_per_value,
+    decode_array,
     decode_value,
-    decode_values,
     is_success,
     status_message,
     sum_char,
@@ -46,6 +50,9 @@ _ECHO_RE: Final = re.compile(rb"[A-Z]{2}[ -~]{0,46}")
 _STATUS_RE: Final = re.compile(rb"[0-9A-Z]{2}")
 _SCAN_ECHO_RE: Final = re.compile(r"(G[DS]|M[DS])(\d{4})(\d{4})(\d{2})(?:(\d)(\d{2}))?(;.*)?")
 
+_LF: Final = 0x0A
+_LOW6: Final = np.uint8(0x3F)  # a sum character's bits (§2.3), as numpy scalars: no
+_ZERO: Final = np.uint8(CHAR_OFFSET)  # conversion of a Python int per operation
 _SUM: Final = "sum"
 _MALFORMED: Final = "malformed"
 
@@ -118,22 +125,50 @@ class TimeReply(Reply):
     timestamp_ms: int = 0
 
 
+def _no_values() -> IntArray:
+    empty: IntArray = np.zeros(0, dtype=np.int64)
+    empty.flags.writeable = False
+    return empty
+
+
 @dataclass(frozen=True, slots=True)
 class ScanReply(Reply):
     """One scan: a GD/GS reply (status 00) or an MD/MS stream message (status 99).
 
-    ``values[j]`` is the raw value in mm of steps ``start_step + j*cluster`` onwards
-    (error codes < 20 included: convert with :func:`mkflight.urg.units.ranges_m`).
-    ``timestamp_ms`` is the 24-bit sensor time of step 0 (§3.3). ``remaining`` is the
-    count the sensor wrote into an MD/MS echo (scans still to come, §3.2), else None.
+    ``values_mm[j]`` is the raw value in mm of steps ``start_step + j*cluster`` onwards
+    (error codes < 20 included: convert with :func:`mkflight.urg.units.ranges_m`), a
+    read-only array: the driver converts a scan to metres without a Python int per beam;
+    :attr:`values` gives them as a tuple. ``timestamp_ms`` is the 24-bit sensor time of
+    step 0 (§3.3). ``remaining`` is the count the sensor wrote into an MD/MS echo (scans
+    still to come, §3.2), else None. Two replies are equal when every field and every
+    value is.
     """
 
     timestamp_ms: int = 0
-    values: tuple[int, ...] = ()
+    values_mm: IntArray = field(default_factory=_no_values, compare=False)
     start_step: int = 0
     end_step: int = 0
     cluster: int = 1
     remaining: int | None = None
+
+    @property
+    def values(self) -> tuple[int, ...]:
+        """The raw values (mm) as Python ints."""
+        return tuple(self.values_mm.tolist())
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, ScanReply) or other.__class__ is not self.__class__:
+            return NotImplemented
+        return (
+            self.echo == other.echo
+            and self.status == other.status
+            and self.timestamp_ms == other.timestamp_ms
+            and self.start_step == other.start_step
+            and self.end_step == other.end_step
+            and self.cluster == other.cluster
+            and self.remaining == other.remaining
+            and np.array_equal(self.values_mm, other.values_mm)
+        )
 
 
 AnyReply = Reply | InfoReply | TimeReply | ScanReply
@@ -187,6 +222,8 @@ class ReplyParser:
         out: list[Reply] = []
         pos = 0
         while True:
+            if not self._partial and not self._skipping:
+                pos = self._take_lines(data, pos, out)
             nl = data.find(b"\n", pos)
             if nl < 0:
                 if self._skipping:
@@ -227,6 +264,38 @@ class ReplyParser:
                     out.append(reply)
             else:
                 stats.discarded_bytes += 1  # an LF between replies
+
+    def _take_lines(self, data: bytes, pos: int, out: list[Reply]) -> int:
+        """Whole lines from ``pos`` on in bulk; returns where :meth:`feed`'s line loop goes on.
+
+        The common case of that loop at the cost of a few C calls: the lines of a reply up
+        to its empty line (then the reply is finished into ``out``), or the complete lines
+        of an unfinished one (kept). Whatever the loop treats specially -- an empty line
+        first, an over-long line, more lines than a reply holds -- is left to it, so both
+        give the same replies and counters.
+        """
+        while pos < len(data) and data[pos] != _LF:
+            end = data.find(b"\n\n", pos)
+            cut = end if end >= 0 else data.rfind(b"\n", pos)
+            if cut < 0:
+                return pos
+            lines = data[pos:cut].split(b"\n")
+            if (
+                len(self._lines) + len(lines) > MAX_REPLY_LINES
+                or max(map(len, lines)) > MAX_LINE_BYTES
+            ):
+                return pos
+            if end < 0:
+                self._lines += lines
+                return cut + 1
+            if self._lines:
+                lines = self._lines + lines
+                self._lines = []
+            pos = end + 2
+            reply = self._finish(lines)
+            if reply is not None:
+                out.append(reply)
+        return pos
 
     def _finish(self, lines: list[bytes]) -> Reply | None:
         """Find the reply in the lines of one ``LF LF``-terminated block, or count them."""
@@ -323,19 +392,13 @@ def _parse_scan(echo: str, status: str, body: list[bytes], chars: int) -> ScanRe
         return _MALFORMED
     if sum_char(stamp[:4]) != stamp[4]:
         return _SUM
-    joined = bytearray()
-    last = len(body) - 1
-    for k, block in enumerate(body[1:], start=1):
-        size = len(block) - 1
-        if not 1 <= size <= BLOCK_CHARS or (k < last and size != BLOCK_CHARS):
-            return _MALFORMED
-        if sum_char(block[:-1]) != block[-1]:
-            return _SUM
-        joined += block[:-1]
+    joined = _scan_data(body[1:])
+    if isinstance(joined, str):
+        return joined
     m = _SCAN_ECHO_RE.fullmatch(echo)
     if m is None or (m[5] is None) != (echo[0] == "G"):
         return _MALFORMED
-    values = decode_values(joined, chars)
+    values = decode_array(joined, chars)
     try:
         timestamp_ms = decode_value(stamp[:4])
     except ValueError:
@@ -347,9 +410,42 @@ def _parse_scan(echo: str, status: str, body: list[bytes], chars: int) -> ScanRe
         echo,
         status,
         timestamp_ms=timestamp_ms,
-        values=tuple(values),
+        values_mm=values,
         start_step=start,
         end_step=end,
         cluster=cluster,
         remaining=int(m[6]) if m[6] is not None else None,
     )
+
+
+def _scan_data(blocks: list[bytes]) -> bytes | str:
+    """The blocks' characters joined, each block's sum checked and stripped (§2.3, §2.5).
+
+    Every block but the last holds 64 characters, the last 1 to 64 (else ``"malformed"``);
+    each block's sum must hold (else ``"sum"``); the first failing block decides. The
+    leading full blocks are checked together: their bytes as rows of 65 (64 characters
+    and the sum), summed per row by numpy.
+    """
+    full = BLOCK_CHARS + 1
+    last = len(blocks) - 1
+    k = 0
+    while k < last and len(blocks[k]) == full:
+        k += 1
+    head = b""
+    if k:
+        rows = np.frombuffer(b"".join(blocks[:k]), dtype=np.uint8).reshape(k, full)
+        chars = rows[:, :BLOCK_CHARS]
+        # the byte sum modulo 256 keeps its low 6 bits: uint8 sums are exact enough
+        sums = (chars.sum(axis=1, dtype=np.uint8) & _LOW6) + _ZERO
+        if sums.tobytes() != rows[:, BLOCK_CHARS].tobytes():
+            return _SUM
+        head = chars.tobytes()
+    if last < 0:
+        return head
+    block = blocks[k]  # the last block, or the first of a wrong size
+    size = len(block) - 1
+    if not 1 <= size <= BLOCK_CHARS or (k < last and size != BLOCK_CHARS):
+        return _MALFORMED
+    if sum_char(block[:-1]) != block[-1]:
+        return _SUM
+    return head + block[:-1]

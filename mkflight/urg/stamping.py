@@ -11,6 +11,7 @@ parameters.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from mkflight.conversions import MM_PER_M, NS_PER_S
 from mkflight.msgs import Scan
@@ -18,7 +19,20 @@ from mkflight.urg.replies import ScanReply
 from mkflight.urg.timesync import SensorClock
 from mkflight.urg.units import SensorParams, TimestampUnwrapper
 
-__all__ = ["ScanStamper"]
+__all__ = ["ScanStamper", "range_table_m"]
+
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def range_table_m(dmin_mm: int, dmax_mm: int) -> FloatArray:
+    """Metres for every raw value 0..DMAX+1: ``v / 1000`` within [DMIN, DMAX], else NaN (§5).
+
+    Indexed by the values clipped to DMAX+1, it converts a whole scan in one lookup; each
+    entry is the same float64 division a value-by-value conversion makes.
+    """
+    mm = np.arange(dmax_mm + 2, dtype=np.float64)
+    return np.where((mm >= dmin_mm) & (mm <= dmax_mm), mm / MM_PER_M, np.nan)
 
 
 class ScanStamper:
@@ -29,6 +43,15 @@ class ScanStamper:
         self._transport_delay_s = transport_delay_s
         self._unwrap = TimestampUnwrapper()
         self._sensor_clock = SensorClock()
+        self._table_limits: tuple[int, int] | None = None
+        self._table: FloatArray = np.empty(0)
+
+    def _ranges_m(self, reply: ScanReply, params: SensorParams) -> FloatArray:
+        """The reply's values in metres, NaN outside [DMIN, DMAX] (one table lookup)."""
+        limits = (params.dmin_mm, params.dmax_mm)
+        if limits != self._table_limits:
+            self._table, self._table_limits = range_table_m(*limits), limits
+        return self._table[np.minimum(reply.values_mm, params.dmax_mm + 1)]
 
     def reset(self) -> None:
         """Forget the timer's history: the sensor's timer was reset (RS)."""
@@ -45,6 +68,5 @@ class ScanStamper:
         known_ns = p.step_offset_ns(reply.end_step) + int(self._transport_delay_s * NS_PER_S)
         self._sensor_clock.observe(sensor_ms, t_ns, known_ns)
         front_ns = self._sensor_clock.to_host_ns(sensor_ms) + p.step_offset_ns(p.afront_step)
-        values = np.asarray(reply.values, dtype=np.float64)
-        ranges = np.where((values >= p.dmin_mm) & (values <= p.dmax_mm), values / MM_PER_M, np.nan)
+        ranges = self._ranges_m(reply, p)
         return Scan(t_ns=front_ns, ranges_m=ranges, first_step=reply.start_step, seq=seq)
