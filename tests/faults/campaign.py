@@ -94,6 +94,7 @@ def _fly_command(sc: Scenario, folder: Path, mk: str, laser: str) -> list[str]:
         laser,
         "--duration",
         f"{sc.duration_s:g}",
+        *(arg for kv in sc.sets for arg in ("--set", kv)),
     ]
     if sc.inject is not None:
         cmd = [PY, "-m", "tests.faults.inject", sc.inject, "--", *fly]

@@ -56,6 +56,7 @@ class Scenario:
     # a daemon defect this row exposes, not yet fixed: the row is judged as strictly, its
     # failure shown in the table and as an expected failure (xfail) in pytest
     known_issue: str | None = None
+    sets: tuple[str, ...] = ()  # --set KEY=VALUE for the flight (e.g. the matcher's worker)
 
     @property
     def needs_namespace(self) -> bool:
@@ -435,6 +436,7 @@ SCENARIOS: Final[tuple[Scenario, ...]] = (
         r"^scan matcher failed: scan matcher process died \(exit code -9\)",
         ("landed",),
         inject="kill-matcher",
+        sets=("scanmatch.worker=process",),  # the matcher runs inline by default
         crash_task="laser",
         stop="crash",
         causes=("stop_crash",),
