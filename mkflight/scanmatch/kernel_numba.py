@@ -251,6 +251,24 @@ def _position(ref: FloatArray, qx: float, qy: float, start: int) -> int:
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _visit(
+    ref: FloatArray, qx: float, qy: float, rho2: float, k: int, best: int, best_d2: float
+) -> tuple[bool, int, float]:
+    """One step of a walk of :func:`_nearest`: ``(walk goes on, best, best_d2)`` after centre k."""
+    ux, uy = ref[5, k], ref[6, k]
+    cross = qx * uy - qy * ux
+    bound2 = cross * cross if qx * ux + qy * uy > 0.0 else rho2
+    if bound2 > best_d2:
+        return False, best, best_d2
+    dx = qx - ref[1, k]
+    dy = qy - ref[2, k]
+    d2 = dx * dx + dy * dy
+    if d2 < best_d2:
+        return True, k, d2
+    return True, best, best_d2
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _nearest(ref: FloatArray, qx: float, qy: float, gate_m: float, hint: IntArray, i: int) -> int:
     """Index of the reference centre nearest to ``(qx, qy)`` within the gate, or -1.
 
@@ -264,10 +282,6 @@ def _nearest(ref: FloatArray, qx: float, qy: float, gate_m: float, hint: IntArra
     in a few steps.
     """
     m = ref.shape[1]
-    cx = ref[1]
-    cy = ref[2]
-    ux = ref[5]
-    uy = ref[6]
     rho2 = qx * qx + qy * qy
     up = hint[i]
     if up < 0 and i > 0:  # first iteration: the scan's previous point's, a step away
@@ -281,31 +295,14 @@ def _nearest(ref: FloatArray, qx: float, qy: float, gate_m: float, hint: IntArra
     down_open = True
     for _ in range(m):
         if up_open:
-            k = up if up < m else up - m
-            cross = qx * uy[k] - qy * ux[k]
-            bound2 = cross * cross if qx * ux[k] + qy * uy[k] > 0.0 else rho2
-            if bound2 > best_d2:
-                up_open = False
-            else:
-                dx = qx - cx[k]
-                dy = qy - cy[k]
-                d2 = dx * dx + dy * dy
-                if d2 < best_d2:
-                    best, best_d2 = k, d2
-                up += 1
+            up_open, best, best_d2 = _visit(
+                ref, qx, qy, rho2, up if up < m else up - m, best, best_d2
+            )
+            up += 1
         if down_open:
             k = down if down >= 0 else down + m
-            cross = qx * uy[k] - qy * ux[k]
-            bound2 = cross * cross if qx * ux[k] + qy * uy[k] > 0.0 else rho2
-            if bound2 > best_d2:
-                down_open = False
-            else:
-                dx = qx - cx[k]
-                dy = qy - cy[k]
-                d2 = dx * dx + dy * dy
-                if d2 < best_d2:
-                    best, best_d2 = k, d2
-                down -= 1
+            down_open, best, best_d2 = _visit(ref, qx, qy, rho2, k, best, best_d2)
+            down -= 1
         if not (up_open or down_open):
             break
     return best
