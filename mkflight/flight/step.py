@@ -261,9 +261,9 @@ class FlightCore:
         self._degenerate = degenerate
         used = False
         if pose is not None and not degenerate:
-            before = self.estimator.counters.pose_rejected
+            before = self.estimator.poses_rejected
             self.estimator.on_scan(pose, t_ns, height_m)  # = on_pose, then on_height
-            used = self.estimator.counters.pose_rejected == before
+            used = self.estimator.poses_rejected == before
             if used:
                 self._last_pose_arrival_ns = self._now_ns
         else:

@@ -102,8 +102,7 @@ _STOP_CAUSE = {
 }
 
 
-@dataclass(frozen=True, slots=True)
-class FailsafeInputs:
+class FailsafeInputs(msgspec.Struct, frozen=True, gc=False):
     """The health of every input at one step (SPEC §5).
 
     Attributes:
@@ -267,6 +266,10 @@ class Failsafe:
         if inp.pilot_override:
             active.append((Cause.PILOT_OVERRIDE, "pilot sticks / RC switch"))
 
+        if not active and not self._latched:  # the usual step: nothing raised, none latched
+            return FailsafeOutput(
+                FailsafeAction.NONE, (), (), False, self._battery_v, self._nonfinite_steps
+            )
         for cause, detail in active:
             if cause not in self._latched:
                 self._latched[cause] = _Latched(t, FailsafeAction.NONE)
