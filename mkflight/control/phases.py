@@ -96,7 +96,7 @@ class PhaseParams:
         return replace(params, **overrides)  # type: ignore[arg-type]
 
 
-class PhaseRequests(msgspec.Struct, frozen=True):
+class PhaseRequests(msgspec.Struct, frozen=True, gc=False):
     """Operator requests and link facts at one step."""
 
     takeoff: bool = False
@@ -115,7 +115,7 @@ class PhaseEvent:
     reason: str
 
 
-class PhaseState(msgspec.Struct, frozen=True):
+class PhaseState(msgspec.Struct, frozen=True, gc=False):
     """The phase machine's memory."""
 
     phase: Phase = Phase.PREFLIGHT
@@ -125,7 +125,7 @@ class PhaseState(msgspec.Struct, frozen=True):
     land_since_ns: int | None = None
 
 
-class PhaseOutput(msgspec.Struct, frozen=True):
+class PhaseOutput(msgspec.Struct, frozen=True, gc=False):
     """What the flight step does this step.
 
     Attributes:

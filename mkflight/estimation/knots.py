@@ -77,10 +77,12 @@ def knot_finite(k: Knot) -> bool:
     """The knot's state (and the Kalman filter's covariance) finite."""
     if not math.isfinite(k.x_m + k.y_m + k.vx_mps + k.vy_mps + k.h_m + k.vz_up_mps):
         return False
-    kx, ky, kz = k.kx, k.ky, k.kz
-    return (
-        (kx is None or kx.finite()) and (ky is None or ky.finite()) and (kz is None or kz.finite())
-    )
+    for s in (k.kx, k.ky, k.kz):  # AxisState.finite, without a call per axis
+        if s is not None and not math.isfinite(
+            s.p + s.v + s.d + s.pp + s.pv + s.pd + s.vv + s.vd + s.dd
+        ):
+            return False
+    return True
 
 
 def complementary_knot(

@@ -174,16 +174,20 @@ class AirframeLearner:
         if not 0.0 < dt_s <= MAX_SAMPLE_GAP_S:
             return
         values = (*acc_level_mps2, *f_body_mps2, gas_factor, gas_counts)
-        if not all(math.isfinite(v) for v in values) or (steady and gas_factor <= 0.0):
+        if not all(map(math.isfinite, values)) or (steady and gas_factor <= 0.0):
             return
         self._since_update += 1
         if self._learned is None or self._since_update >= UPDATE_EVERY:
             self._learned, self._since_update = None, 0
         if not steady:
             self._rest_s += dt_s
-        for i, (mean, a) in enumerate(zip(self._bias, acc_level_mps2, strict=True)):
-            weight = REST_WEIGHT_Z if i == 2 and not steady else 1.0
-            mean.add(max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, a)), dt_s * weight)
+        bx, by, bz = self._bias
+        ax, ay, az = acc_level_mps2
+        bx.add(max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, ax)), dt_s)
+        by.add(max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, ay)), dt_s)
+        bz.add(
+            max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, az)), dt_s * (1.0 if steady else REST_WEIGHT_Z)
+        )
         if not steady:
             return
         self._steady_s += dt_s

@@ -103,7 +103,7 @@ MAX_HOLD_OFFSET_M = 1.0
 """The largest HOLD set-point offset :meth:`FlightCore.set_hold_offset` accepts."""
 
 
-class ImuStepOutput(msgspec.Struct, frozen=True):
+class ImuStepOutput(msgspec.Struct, frozen=True, gc=False):
     """What one 50 ms step decided.
 
     Attributes:

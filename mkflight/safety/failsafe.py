@@ -141,7 +141,7 @@ class TransitionEvent:
     detail: str = ""
 
 
-class FailsafeOutput(msgspec.Struct, frozen=True):
+class FailsafeOutput(msgspec.Struct, frozen=True, gc=False):
     """One step's decision.
 
     Attributes:
