@@ -94,7 +94,8 @@ def hover_feedforward(
 ) -> float:
     """Hover gas for this attitude and battery (see the module docstring); finite inputs."""
     ratio = clamp(control.hover_voltage_v / battery_v, *battery_ratio_limits)
-    tilt = max(math.cos(pitch_rad) * math.cos(roll_rad), min_tilt_factor)
+    tilt = math.cos(pitch_rad) * math.cos(roll_rad)
+    tilt = min_tilt_factor if tilt < min_tilt_factor else tilt  # max(tilt, min_tilt_factor)
     return control.hover_gas * ratio / tilt
 
 

@@ -258,7 +258,9 @@ class Estimator:
         f = (imu.acc_x_mps2, imu.acc_y_mps2, imu.acc_z_mps2)
         if (
             not finite(imu.pitch_rad, imu.roll_rad, imu.yaw_rad, *f)
-            or max(abs(f[0]), abs(f[1]), abs(f[2])) > self._max_abs_acc_mps2
+            or abs(f[0]) > self._max_abs_acc_mps2
+            or abs(f[1]) > self._max_abs_acc_mps2
+            or abs(f[2]) > self._max_abs_acc_mps2
         ):
             self._counts["imu_rejected"] += 1
             return self.estimate()
@@ -315,7 +317,8 @@ class Estimator:
         if k.kx is None or k.ky is None or not dt_s > 0.0:
             return
         span = self._lasting_s + dt_s
-        w = max(dt_s / span, dt_s / LASTING_TAU_S)
+        early, lasting = dt_s / span, dt_s / LASTING_TAU_S
+        w = lasting if lasting > early else early  # max(early, lasting)
         lx, ly = self._lasting_w
         self._lasting_w = (lx + w * (k.kx.d - lx), ly + w * (k.ky.d - ly))
         self._lasting_s = span
@@ -323,7 +326,7 @@ class Estimator:
     def on_pose(self, pose: Pose2D) -> None:
         """Correct with a laser pose stamped at its scan time (eq 15-16, 18-20)."""
         if not finite(pose.x_m, pose.y_m, pose.yaw_rad) or (
-            max(abs(pose.x_m), abs(pose.y_m)) > self._max_abs_position_m
+            abs(pose.x_m) > self._max_abs_position_m or abs(pose.y_m) > self._max_abs_position_m
         ):
             self._counts["pose_rejected"] += 1
             return
@@ -421,7 +424,7 @@ class Estimator:
             return None
         lim = self._max_abs_position_m
         if not finite(pose.x_m, pose.y_m, pose.yaw_rad, height_m) or (
-            max(abs(pose.x_m), abs(pose.y_m), abs(height_m)) > lim
+            abs(pose.x_m) > lim or abs(pose.y_m) > lim or abs(height_m) > lim
         ):
             return None
         prev, prev_h = self._last_pose, self._last_height

@@ -64,6 +64,12 @@ MAX_GAS_COUNTS: Final = 255.0
 """A learned bias beyond this is not a bias (a stuck sensor): it is clamped."""
 
 
+def _clip(x: float, limit: float) -> float:
+    """``max(-limit, min(limit, x))`` in the builtins' order (NaN gives ``limit``), cheaper."""
+    x = x if x < limit else limit
+    return x if x > -limit else -limit
+
+
 class TimeMean:
     """An exponential mean over time that starts as a plain mean (no start-up bias)."""
 
@@ -80,7 +86,8 @@ class TimeMean:
         self.span_s += dt_s
         if self._decay[0] != dt_s:  # the FC's period repeats: one exp per new interval
             self._decay = (dt_s, 1.0 - math.exp(-dt_s / self.tau_s))
-        weight = max(dt_s / self.span_s, self._decay[1])
+        early, decay = dt_s / self.span_s, self._decay[1]
+        weight = decay if decay > early else early  # max(early, decay)
         self.value += weight * (x - self.value)
 
 
@@ -183,21 +190,20 @@ class AirframeLearner:
             self._rest_s += dt_s
         bx, by, bz = self._bias
         ax, ay, az = acc_level_mps2
-        bx.add(max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, ax)), dt_s)
-        by.add(max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, ay)), dt_s)
-        bz.add(
-            max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, az)), dt_s * (1.0 if steady else REST_WEIGHT_Z)
-        )
+        bx.add(_clip(ax, MAX_DIFF_MPS2), dt_s)
+        by.add(_clip(ay, MAX_DIFF_MPS2), dt_s)
+        bz.add(_clip(az, MAX_DIFF_MPS2), dt_s * (1.0 if steady else REST_WEIGHT_Z))
         if not steady:
             return
         self._steady_s += dt_s
         hover = gas_counts / gas_factor
         if math.isfinite(hover):
-            self._hover.add(max(0.0, min(MAX_GAS_COUNTS, hover)), dt_s)
+            hover = hover if hover < MAX_GAS_COUNTS else MAX_GAS_COUNTS  # min, then max
+            self._hover.add(hover if hover > 0.0 else 0.0, dt_s)
         for mean, f, f0 in zip(self._noise, source, last[1], strict=True):
             if not same_kind:  # the source changed: no difference this once
                 break
-            diff = max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, f - f0))
+            diff = _clip(f - f0, MAX_DIFF_MPS2)
             mean.add(0.5 * diff * diff, dt_s)
 
     @property

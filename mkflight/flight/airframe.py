@@ -137,7 +137,8 @@ class FlightAirframe:
             if not flying or gas_counts <= 0:
                 return None
         else:
-            dt_s = max(0.0, (t_ns - prev[0]) / NS_PER_S)
+            dt_s = (t_ns - prev[0]) / NS_PER_S
+            dt_s = dt_s if dt_s > 0.0 else 0.0  # max(0.0, dt_s)
             if self._lag[0] != dt_s:  # one exp per new interval
                 self._lag = (dt_s, 1.0 - math.exp(-dt_s / THRUST_TAU_S))
             self._gas_lagged = (t_ns, prev[1] + (gas_counts - prev[1]) * self._lag[1])

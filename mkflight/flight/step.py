@@ -256,7 +256,7 @@ class FlightCore:
         Returns the TABLE III row, or None before the estimator has a laser velocity.
         """
         if arrival_ns is not None:
-            self._now_ns = max(self._now_ns, arrival_ns)
+            self._now_ns = arrival_ns if arrival_ns > self._now_ns else self._now_ns
         self.counters.laser_steps += 1
         self._degenerate = degenerate
         used = False
@@ -353,7 +353,7 @@ class FlightCore:
         self.counters.imu_steps += 1
         if self._first_ns is None:
             self._first_ns = t_ns
-        self._now_ns = max(self._now_ns, t_ns)
+        self._now_ns = t_ns if t_ns > self._now_ns else self._now_ns
 
     def _estimate(self, imu: ImuSample, *, flying: bool) -> tuple[Estimate, bool]:
         """The estimate after ``imu``, and whether the estimator took it (fresh).
