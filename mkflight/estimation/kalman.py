@@ -32,7 +32,6 @@ step.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Final
 
 import msgspec
@@ -46,8 +45,7 @@ MIN_GATE_MPS2: Final = 1.0
 expectation, and never less than this: a jolt (a landing gear's, a hand's) is clipped."""
 
 
-@dataclass(frozen=True, slots=True)
-class AxisNoise:
+class AxisNoise(msgspec.Struct, frozen=True, gc=False):
     """The noises of one axis (standard deviations; SI units).
 
     ``disturbance_std``/``disturbance_tau_s``: how strong and how quick the disturbance is

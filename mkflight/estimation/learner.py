@@ -31,8 +31,9 @@ as learned after :data:`MIN_LEARN_S` of them. Pure: no clock, no I/O.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Final
+
+import msgspec
 
 from mkflight.conversions import NS_PER_S
 
@@ -91,8 +92,7 @@ class TimeMean:
         self.value += weight * (x - self.value)
 
 
-@dataclass(frozen=True, slots=True)
-class LearnedAirframe:
+class LearnedAirframe(msgspec.Struct, frozen=True, gc=False):
     """What has been learned so far (None: not yet, see :data:`MIN_LEARN_S`).
 
     Attributes:
