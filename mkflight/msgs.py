@@ -2,6 +2,11 @@
 
 Every record carries ``t_ns`` from the injected clock (host monotonic time at which the
 data was received or measured) and SI values with their units in their names.
+
+The records the 50 ms step builds (pose, estimate, command) are frozen ``msgspec.Struct``
+values: immutable like a frozen dataclass, built ~5x faster, and (``gc=False``: they hold
+only numbers, so no reference cycle can go through them) not tracked by the garbage
+collector.
 """
 
 from __future__ import annotations
@@ -9,6 +14,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Final
+
+import msgspec
 
 if TYPE_CHECKING:  # numpy stays off the import path of the MK-only commands
     import numpy as np
@@ -85,8 +92,7 @@ class Scan:
     seq: int = 0
 
 
-@dataclass(frozen=True, slots=True)
-class Pose2D:
+class Pose2D(msgspec.Struct, frozen=True, gc=False):
     """A planar pose in the world frame W (SPEC §1): x forward, y right, psi clockwise."""
 
     t_ns: int
@@ -95,8 +101,7 @@ class Pose2D:
     yaw_rad: float
 
 
-@dataclass(frozen=True, slots=True)
-class Estimate:
+class Estimate(msgspec.Struct, frozen=True, gc=False):
     """The estimator's state at ``t_ns`` (SPEC §1, §3), in the world frame W.
 
     W: x forward and y right at the first scan, z down; ``height_m`` is positive up and
@@ -122,8 +127,7 @@ class Estimate:
     ay_ext_mps2: float = 0.0
 
 
-@dataclass(frozen=True, slots=True)
-class Command:
+class Command(msgspec.Struct, frozen=True, gc=False):
     """One ExternControl's content in MK counts, as the controllers decided it (SPEC §4).
 
     ``nick_counts``/``roll_counts``/``yaw_counts`` within +-127 with the MK's signs already

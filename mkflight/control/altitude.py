@@ -37,14 +37,14 @@ BATTERY_RATIO_LIMITS = (0.8, 1.25)
 """Bounds of hover_voltage_v / battery_v in the feed-forward."""
 
 
-class AltitudeState(msgspec.Struct, frozen=True):
+class AltitudeState(msgspec.Struct, frozen=True, gc=False):
     """The height (outer) and vertical-velocity (inner) PIDs' states."""
 
     height: PidState = msgspec.field(default_factory=PidState)
     climb: PidState = msgspec.field(default_factory=PidState)
 
 
-class AltitudeResult(msgspec.Struct, frozen=True):
+class AltitudeResult(msgspec.Struct, frozen=True, gc=False):
     """One altitude step: the climb set-point, the gas parts and the gas byte."""
 
     climb_sp_mps: float
@@ -94,7 +94,8 @@ def hover_feedforward(
 ) -> float:
     """Hover gas for this attitude and battery (see the module docstring); finite inputs."""
     ratio = clamp(control.hover_voltage_v / battery_v, *battery_ratio_limits)
-    tilt = max(math.cos(pitch_rad) * math.cos(roll_rad), min_tilt_factor)
+    tilt = math.cos(pitch_rad) * math.cos(roll_rad)
+    tilt = min_tilt_factor if tilt < min_tilt_factor else tilt  # max(tilt, min_tilt_factor)
     return control.hover_gas * ratio / tilt
 
 

@@ -47,7 +47,7 @@ class ControlMode(enum.Enum):
     LEVEL = "level"
 
 
-class Setpoint(msgspec.Struct, frozen=True):
+class Setpoint(msgspec.Struct, frozen=True, gc=False):
     """Where to be, in W (SPEC §1): position, heading (clockwise) and height (up).
 
     ``climb_ff_mps`` is the height set-point's own rate (a ramp's climb/descent), used as
@@ -61,7 +61,7 @@ class Setpoint(msgspec.Struct, frozen=True):
     climb_ff_mps: float = 0.0
 
 
-class ControlDiagnostics(msgspec.Struct, frozen=True):
+class ControlDiagnostics(msgspec.Struct, frozen=True, gc=False):
     """Every intermediate of a valid step (all finite), for the logs."""
 
     pitch_sp_rad: float
@@ -79,7 +79,7 @@ class ControlDiagnostics(msgspec.Struct, frozen=True):
     gas_total: float
 
 
-class ControlOutput(msgspec.Struct, frozen=True):
+class ControlOutput(msgspec.Struct, frozen=True, gc=False):
     """One step's result: a command and its diagnostics, or ``valid=False`` (see module)."""
 
     valid: bool
@@ -88,7 +88,7 @@ class ControlOutput(msgspec.Struct, frozen=True):
     invalid_inputs: tuple[str, ...] = ()
 
 
-class ControllerState(msgspec.Struct, frozen=True):
+class ControllerState(msgspec.Struct, frozen=True, gc=False):
     """All loop states and the timestamp of the last valid update (None before any)."""
 
     position: PositionState = msgspec.field(default_factory=PositionState)

@@ -47,7 +47,7 @@ def counts_from_value(value: float, limit_counts: int) -> int:
         raise ValueError(msg)
     limit = float(limit_counts)
     clamped = -limit if value < -limit else limit if value > limit else value
-    return max(-limit_counts, min(limit_counts, round(clamped)))
+    return round(clamped)  # within +-limit_counts: the bound is a whole number
 
 
 def angle_to_counts(angle_rad: float, sign: int, counts_per_rad: float) -> int:
@@ -80,7 +80,7 @@ def gas_to_counts(gas: float, gas_max: int) -> int:
         msg = f"refusing to convert non-finite gas {gas} into MK counts"
         raise ValueError(msg)
     clamped = 0.0 if gas < 0.0 else float(gas_max) if gas > gas_max else gas
-    return max(0, min(gas_max, round(clamped)))
+    return round(clamped)  # within [0, gas_max]: the bounds are whole numbers
 
 
 TILT_ROUNDING_COUNTS = math.sqrt(0.5)

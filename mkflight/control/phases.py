@@ -96,7 +96,7 @@ class PhaseParams:
         return replace(params, **overrides)  # type: ignore[arg-type]
 
 
-class PhaseRequests(msgspec.Struct, frozen=True):
+class PhaseRequests(msgspec.Struct, frozen=True, gc=False):
     """Operator requests and link facts at one step."""
 
     takeoff: bool = False
@@ -115,7 +115,7 @@ class PhaseEvent:
     reason: str
 
 
-class PhaseState(msgspec.Struct, frozen=True):
+class PhaseState(msgspec.Struct, frozen=True, gc=False):
     """The phase machine's memory."""
 
     phase: Phase = Phase.PREFLIGHT
@@ -125,7 +125,7 @@ class PhaseState(msgspec.Struct, frozen=True):
     land_since_ns: int | None = None
 
 
-class PhaseOutput(msgspec.Struct, frozen=True):
+class PhaseOutput(msgspec.Struct, frozen=True, gc=False):
     """What the flight step does this step.
 
     Attributes:
@@ -172,6 +172,12 @@ def _landed_now(p: PhaseParams, est: Estimate, last_gas_counts: int | None) -> b
     return low or idle
 
 
+def _clamp_dt(dt_s: float, max_dt_s: float) -> float:
+    """``min(max(0.0, dt_s), max_dt_s)`` in the builtins' order, without their calls."""
+    dt_s = dt_s if dt_s > 0.0 else 0.0
+    return max_dt_s if max_dt_s < dt_s else dt_s
+
+
 def phase_step(
     p: PhaseParams,
     state: PhaseState,
@@ -196,11 +202,7 @@ def phase_step(
     Returns:
         The next state and what to do with it.
     """
-    dt_s = (
-        0.0
-        if state.t_ns is None
-        else min(max(0.0, (t_ns - state.t_ns) * S_PER_NS), p.max_step_dt_s)
-    )
+    dt_s = 0.0 if state.t_ns is None else _clamp_dt((t_ns - state.t_ns) * S_PER_NS, p.max_step_dt_s)
     phase, sp, start, land_since = (
         state.phase,
         state.setpoint,

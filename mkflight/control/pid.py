@@ -24,6 +24,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar, cast
 
+import msgspec
+
 from mkflight.frames import wrap_pi
 
 
@@ -53,16 +55,18 @@ class PidGains:
     angle: bool = False
 
 
-@dataclass(slots=True)  # not frozen: built many times a step (4x cheaper); never mutated
-class PidState:
-    """What a PID remembers: the integral term (output units) and the last measurement."""
+class PidState(msgspec.Struct, gc=False):
+    """What a PID remembers: the integral term (output units) and the last measurement.
+
+    Never changed once built; a plain Struct, untracked by the garbage collector (it holds
+    two numbers): seven are built a step.
+    """
 
     integral: float = 0.0
     prev_measurement: float | None = None
 
 
-@dataclass(slots=True)  # not frozen: built many times a step (4x cheaper); never mutated
-class PidResult:
+class PidResult(msgspec.Struct, gc=False):
     """One PID step's output, its parts and the next state.
 
     ``valid`` is False iff an input was non-finite; then ``output``, ``p``, ``i``, ``d`` are
@@ -143,42 +147,43 @@ def pid_update(
         The clamped output and its parts; ``valid=False`` (state unchanged, NaN output)
         if ``error``, ``measurement``, ``rate`` or ``feedforward`` is non-finite.
     """
-    if not (math.isfinite(error) and math.isfinite(measurement) and math.isfinite(feedforward)):
+    isfinite = math.isfinite
+    if not (isfinite(error) and isfinite(measurement) and isfinite(feedforward)):
         return _invalid(state)
-    if rate is not None and not math.isfinite(rate):
+    if rate is not None and not isfinite(rate):
         return _invalid(state)
-    dt_ok = math.isfinite(dt_s) and dt_s > 0.0
+    dt_ok = dt_s > 0.0 and isfinite(dt_s)
+    kp, ki, kd, lo, hi = gains.kp, gains.ki, gains.kd, gains.output_min, gains.output_max
 
-    p = gains.kp * error
+    p = kp * error
     d = 0.0
-    if gains.kd != 0.0:
+    if kd != 0.0:
         if rate is not None:
-            d = -gains.kd * rate
+            d = -kd * rate
         elif dt_ok and state.prev_measurement is not None:
             delta = measurement - state.prev_measurement
             if gains.angle:
                 delta = wrap_pi(delta)
-            d = -gains.kd * delta / dt_s
-    if not math.isfinite(d):  # an absurdly small dt_s: drop the derivative, keep the state clean
-        d = 0.0
+            d = -kd * delta / dt_s
+        if not isfinite(d):  # an absurdly small dt_s: drop the derivative, keep the state clean
+            d = 0.0
 
     integral = state.integral
-    if dt_ok and gains.ki != 0.0:
+    if dt_ok and ki != 0.0:
         unsat = feedforward + p + integral + d
-        step = gains.ki * error * dt_s
+        step = ki * error * dt_s
         blocked = gains.anti_windup and (
-            (unsat >= gains.output_max and step > 0.0) or (unsat <= gains.output_min and step < 0.0)
+            (unsat >= hi and step > 0.0) or (unsat <= lo and step < 0.0)
         )
-        if not blocked and math.isfinite(step):
+        if not blocked and isfinite(step):
             integral = clamp(integral + step, -gains.integral_limit, gains.integral_limit)
 
     raw = feedforward + p + integral + d
-    if not math.isfinite(raw):  # finite inputs, overflowing gains: refuse rather than clamp
+    if not isfinite(raw):  # finite inputs, overflowing gains: refuse rather than clamp
         return _invalid(state)
-    output = clamp(raw, gains.output_min, gains.output_max)
-    saturation = 1 if raw > gains.output_max else -1 if raw < gains.output_min else 0
-    new_state = PidState(integral=integral, prev_measurement=measurement)
-    return PidResult(output, new_state, p, integral, d, saturation, valid=True)
+    output = lo if raw < lo else hi if raw > hi else raw
+    saturation = 1 if raw > hi else -1 if raw < lo else 0
+    return PidResult(output, PidState(integral, measurement), p, integral, d, saturation, True)
 
 
 def pid_reset(integral: float = 0.0) -> PidState:

@@ -33,7 +33,7 @@ from mkflight.control.pid import PidGains, PidState, gains_of_config, pid_update
 from mkflight.frames import world_to_body
 
 
-class PositionState(msgspec.Struct, frozen=True):
+class PositionState(msgspec.Struct, frozen=True, gc=False):
     """The four PIDs' states: position x/y (outer) and velocity x/y (inner), all in W."""
 
     pos_x: PidState = msgspec.field(default_factory=PidState)
@@ -42,7 +42,7 @@ class PositionState(msgspec.Struct, frozen=True):
     vel_y: PidState = msgspec.field(default_factory=PidState)
 
 
-class PositionResult(msgspec.Struct, frozen=True):
+class PositionResult(msgspec.Struct, frozen=True, gc=False):
     """One step of the horizontal cascade, with every intermediate for the logs."""
 
     vel_sp_x_mps: float

@@ -18,7 +18,7 @@ from mkflight.control.pid import PidGains, PidState, gains_of_config, pid_update
 from mkflight.frames import wrap_pi
 
 
-class YawResult(msgspec.Struct, frozen=True):
+class YawResult(msgspec.Struct, frozen=True, gc=False):
     """One yaw step: the wrapped error, the rate command (our sign) and the MK counts."""
 
     error_rad: float

@@ -42,8 +42,9 @@ from __future__ import annotations
 import bisect
 import math
 import operator
-from dataclasses import replace
 from typing import Final
+
+import msgspec
 
 from mkflight.config import EstimationConfig
 from mkflight.conversions import NS_PER_S
@@ -121,6 +122,7 @@ class Estimator:
         self._height_stale_ns = round(height_stale_s * NS_PER_S)
         self._max_meas_gap_ns = round(max_meas_gap_s * NS_PER_S)
         self._max_imu_gap_ns = round(max_imu_gap_s * NS_PER_S)
+        self._history_ns = round(cfg.imu_history_s * NS_PER_S)
         self._max_abs_acc_mps2 = max_abs_acc_mps2
         self._max_abs_position_m = max_abs_position_m
         self._knots: list[Knot] = []
@@ -151,6 +153,11 @@ class Estimator:
     def counters(self) -> EstimatorCounters:
         """How many inputs were rejected, out of order, or had no history to go back to."""
         return EstimatorCounters(**self._counts)
+
+    @property
+    def poses_rejected(self) -> int:
+        """How many poses were rejected so far (``counters.pose_rejected``, without the copy)."""
+        return self._counts["pose_rejected"]
 
     @property
     def last_acc_level(self) -> tuple[float, float, float] | None:
@@ -249,8 +256,11 @@ class Estimator:
         flight step's, in flight), with ``estimation.tilt_acceleration``.
         """
         f = (imu.acc_x_mps2, imu.acc_y_mps2, imu.acc_z_mps2)
-        if not finite(imu.pitch_rad, imu.roll_rad, imu.yaw_rad, *f) or any(
-            abs(v) > self._max_abs_acc_mps2 for v in f
+        if (
+            not finite(imu.pitch_rad, imu.roll_rad, imu.yaw_rad, *f)
+            or abs(f[0]) > self._max_abs_acc_mps2
+            or abs(f[1]) > self._max_abs_acc_mps2
+            or abs(f[2]) > self._max_abs_acc_mps2
         ):
             self._counts["imu_rejected"] += 1
             return self.estimate()
@@ -307,7 +317,8 @@ class Estimator:
         if k.kx is None or k.ky is None or not dt_s > 0.0:
             return
         span = self._lasting_s + dt_s
-        w = max(dt_s / span, dt_s / LASTING_TAU_S)
+        early, lasting = dt_s / span, dt_s / LASTING_TAU_S
+        w = lasting if lasting > early else early  # max(early, lasting)
         lx, ly = self._lasting_w
         self._lasting_w = (lx + w * (k.kx.d - lx), ly + w * (k.ky.d - ly))
         self._lasting_s = span
@@ -315,7 +326,7 @@ class Estimator:
     def on_pose(self, pose: Pose2D) -> None:
         """Correct with a laser pose stamped at its scan time (eq 15-16, 18-20)."""
         if not finite(pose.x_m, pose.y_m, pose.yaw_rad) or (
-            max(abs(pose.x_m), abs(pose.y_m)) > self._max_abs_position_m
+            abs(pose.x_m) > self._max_abs_position_m or abs(pose.y_m) > self._max_abs_position_m
         ):
             self._counts["pose_rejected"] += 1
             return
@@ -413,7 +424,7 @@ class Estimator:
             return None
         lim = self._max_abs_position_m
         if not finite(pose.x_m, pose.y_m, pose.yaw_rad, height_m) or (
-            max(abs(pose.x_m), abs(pose.y_m), abs(height_m)) > lim
+            abs(pose.x_m) > lim or abs(pose.y_m) > lim or abs(height_m) > lim
         ):
             return None
         prev, prev_h = self._last_pose, self._last_height
@@ -606,10 +617,10 @@ class Estimator:
                     t_mid = pose.t_ns - round(vel.dt_s * NS_PER_S / 2)
                     dvx, dvy, _ = self._acc_integral_w(t_mid, ks[a].t_ns)
                     meas = (meas[0] + dvx, meas[1] + dvy)
-            ks[a] = replace(ks[a], x_m=x, y_m=y, fix_xy=(x, y), meas_w=meas)
+            ks[a] = msgspec.structs.replace(ks[a], x_m=x, y_m=y, fix_xy=(x, y), meas_w=meas)
         for m in range(a + 1, len(ks)):  # this newer pose supersedes later predictions
             if ks[m].fix_xy is not None:
-                ks[m] = replace(ks[m], fix_xy=None)
+                ks[m] = msgspec.structs.replace(ks[m], fix_xy=None)
         return a, compensated
 
     def _laser_row(self, pose: Pose2D, vel: LaserVelocity | None, compensated: bool) -> LaserStep:
@@ -652,7 +663,7 @@ class Estimator:
         ks[a] = k
         for m in range(a + 1, len(ks)):
             if ks[m].fix_h is not None:
-                ks[m] = replace(ks[m], fix_h=None)
+                ks[m] = msgspec.structs.replace(ks[m], fix_h=None)
         return a
 
     def _kalman_fix(self, a: int, *, horizontal: bool) -> int:
@@ -668,14 +679,14 @@ class Estimator:
         before = a > 0 and (ks[a - 1].kx if horizontal else ks[a - 1].kz) is not None
         if not started:
             if horizontal and k.fix_xy is not None:
-                ks[a] = replace(
+                ks[a] = msgspec.structs.replace(
                     k, kx=self._start(k.fix_xy[0], k.fix_std_m, DISTURBANCE_STD_MPS2),
                     ky=self._start(k.fix_xy[1], k.fix_std_m, DISTURBANCE_STD_MPS2),
                     x_m=k.fix_xy[0], y_m=k.fix_xy[1], vx_mps=0.0, vy_mps=0.0,
                 )  # fmt: skip
             elif not horizontal and k.fix_h is not None:
                 kz = self._start(k.fix_h, self._cfg.height_noise_m, DISTURBANCE_Z_STD_MPS2)
-                ks[a] = replace(k, kz=kz, h_m=k.fix_h, vz_up_mps=0.0)
+                ks[a] = msgspec.structs.replace(k, kz=kz, h_m=k.fix_h, vz_up_mps=0.0)
             return a
         if before:
             ks[a] = self._propagate(ks[a - 1], k)
@@ -683,10 +694,12 @@ class Estimator:
         if horizontal and k.fix_xy is not None and k.kx is not None and k.ky is not None:
             kx = update_position(k.kx, k.fix_xy[0], k.fix_std_m)
             ky = update_position(k.ky, k.fix_xy[1], k.fix_std_m)
-            ks[a] = replace(k, kx=kx, ky=ky, x_m=kx.p, y_m=ky.p, vx_mps=kx.v, vy_mps=ky.v)
+            ks[a] = msgspec.structs.replace(
+                k, kx=kx, ky=ky, x_m=kx.p, y_m=ky.p, vx_mps=kx.v, vy_mps=ky.v
+            )
         elif not horizontal and k.fix_h is not None and k.kz is not None:
             kz = update_position(k.kz, k.fix_h, self._cfg.height_noise_m)
-            ks[a] = replace(k, kz=kz, h_m=kz.p, vz_up_mps=kz.v)
+            ks[a] = msgspec.structs.replace(k, kz=kz, h_m=kz.p, vz_up_mps=kz.v)
         return a
 
     @staticmethod
@@ -695,7 +708,7 @@ class Estimator:
 
     def _trim(self) -> None:
         """Drop knots older than ``imu_history_s``, keeping one at or before the cut."""
-        cut = self._knots[-1].t_ns - round(self._cfg.imu_history_s * NS_PER_S)
+        cut = self._knots[-1].t_ns - self._history_ns
         i = bisect.bisect_left(self._knots, cut, key=_T_NS)
         if i > 1:
             del self._knots[: i - 1]

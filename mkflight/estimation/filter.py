@@ -45,7 +45,7 @@ def complementary_step(
     return v_hat_mps + dt_s * (correction + acc_mps2)
 
 
-class LaserVelocity(msgspec.Struct, frozen=True):
+class LaserVelocity(msgspec.Struct, frozen=True, gc=False):
     """The laser's velocity over the interval between two poses (eq 19, Fig. 17).
 
     ``vx_w_mps``/``vy_w_mps`` are in the world frame W; ``yaw_rate_radps`` is clockwise.

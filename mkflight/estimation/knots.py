@@ -3,21 +3,21 @@
 A knot holds the inputs held from its time (the acceleration until the next knot, the
 MK's gyro yaw, the measurements taken there) and the state after them: the complementary
 filter's position and velocity (eq 15-17) or the Kalman filter's per axis
-(:mod:`mkflight.estimation.kalman`). Frozen: the estimator replaces knots when a late
-scan re-filters the history (:mod:`mkflight.estimation.estimator`).
+(:mod:`mkflight.estimation.kalman`). Never changed once in the history: the estimator
+replaces knots when a late scan re-filters it (:mod:`mkflight.estimation.estimator`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+
+import msgspec
 
 from mkflight.estimation.filter import complementary_step
 from mkflight.estimation.kalman import (
     AxisNoise,
     AxisState,
-    predict,
-    update_acceleration,
+    predict_update,
     update_position,
 )
 
@@ -25,9 +25,13 @@ Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
 
 
-@dataclass(slots=True)  # not frozen: built many times a step (4x cheaper); see copy_knot
-class Knot:
-    """One point of the history: the state at ``t_ns`` and the inputs held from it."""
+class Knot(msgspec.Struct, gc=False):
+    """One point of the history: the state at ``t_ns`` and the inputs held from it.
+
+    A plain Struct (fields are set on a new knot, :func:`copy_knot`, before it goes into
+    the history); untracked by the garbage collector: it holds numbers, tuples of numbers
+    and :class:`AxisState` values, so no reference cycle can go through it.
+    """
 
     t_ns: int
     acc_l: Vec3  # level frame FRD, m/s^2, held until the next knot (Kalman: the model's)
@@ -55,7 +59,7 @@ def copy_knot(k: Knot) -> Knot:
     """A new knot equal to ``k``, to set fields on before it goes into the history.
 
     A knot in the history is never changed (the estimator keeps a list of them to restore);
-    this is ``dataclasses.replace`` without its per-field lookups, on the scan's path.
+    this is ``msgspec.structs.replace`` without its keyword arguments, on the scan's path.
     """
     return Knot(
         k.t_ns, k.acc_l, k.mk_yaw_rad, k.x_m, k.y_m, k.vx_mps, k.vy_mps, k.h_m, k.vz_up_mps,
@@ -73,10 +77,12 @@ def knot_finite(k: Knot) -> bool:
     """The knot's state (and the Kalman filter's covariance) finite."""
     if not math.isfinite(k.x_m + k.y_m + k.vx_mps + k.vy_mps + k.h_m + k.vz_up_mps):
         return False
-    kx, ky, kz = k.kx, k.ky, k.kz
-    return (
-        (kx is None or kx.finite()) and (ky is None or ky.finite()) and (kz is None or kz.finite())
-    )
+    for s in (k.kx, k.ky, k.kz):  # AxisState.finite, without a call per axis
+        if s is not None and not math.isfinite(
+            s.p + s.v + s.d + s.pp + s.pv + s.pd + s.vv + s.vd + s.dd
+        ):
+            return False
+    return True
 
 
 def complementary_knot(
@@ -125,7 +131,7 @@ def complementary_knot(
         meas_w = nxt.meas_w
     if nxt.fix_h is not None:
         h, meas_z = nxt.fix_h, nxt.meas_z
-    return replace(
+    return msgspec.structs.replace(
         nxt, x_m=x, y_m=y, vx_mps=vx, vy_mps=vy, h_m=h, vz_up_mps=vz,
         meas_w=meas_w, meas_z=meas_z,
     )  # fmt: skip
@@ -158,10 +164,9 @@ def kalman_knot(
         kx, ky = nxt.kx, nxt.ky
     elif horizontal:
         n = noise_xy
-        kx = predict(kx, 0.5 * (acc_w[0] + next_acc_w[0]), dt_s, n)
-        ky = predict(ky, 0.5 * (acc_w[1] + next_acc_w[1]), dt_s, n)
-        if res_w is not None:
-            kx, ky = update_acceleration(kx, res_w[0], n), update_acceleration(ky, res_w[1], n)
+        rx, ry = (None, None) if res_w is None else (res_w[0], res_w[1])
+        kx = predict_update(kx, 0.5 * (acc_w[0] + next_acc_w[0]), dt_s, n, rx)
+        ky = predict_update(ky, 0.5 * (acc_w[1] + next_acc_w[1]), dt_s, n, ry)
         if nxt.fix_xy is not None:
             kx = update_position(kx, nxt.fix_xy[0], nxt.fix_std_m)
             ky = update_position(ky, nxt.fix_xy[1], nxt.fix_std_m)
@@ -173,17 +178,15 @@ def kalman_knot(
         if nxt.z_model != k.z_model:
             dd = (n.acc_std if nxt.z_model else n.disturbance_std) ** 2
             d0 = rz if nxt.z_model and rz is not None else 0.0
-            kz = replace(kz, d=d0, pd=0.0, vd=0.0, dd=dd)
-        kz = predict(kz, 0.5 * (acc_w[2] + next_acc_w[2]), dt_s, n)
-        if rz is not None:
-            kz = update_acceleration(kz, rz, n)
+            kz = msgspec.structs.replace(kz, d=d0, pd=0.0, vd=0.0, dd=dd)
+        kz = predict_update(kz, 0.5 * (acc_w[2] + next_acc_w[2]), dt_s, n, rz)
         if nxt.fix_h is not None:
             kz = update_position(kz, nxt.fix_h, height_noise_m)
     x, y, vx, vy = k.x_m, k.y_m, k.vx_mps, k.vy_mps
     if kx is not None and ky is not None:
         x, y, vx, vy = kx.p, ky.p, kx.v, ky.v
     h, vz = (kz.p, kz.v) if kz is not None else (k.h_m, k.vz_up_mps)
-    return Knot(  # all fields: faster than dataclasses.replace on the 20 Hz path
+    return Knot(  # all fields: faster than msgspec.structs.replace on the 20 Hz path
         nxt.t_ns, nxt.acc_l, nxt.mk_yaw_rad, x, y, vx, vy, h, vz,
         nxt.meas_w, nxt.meas_z, nxt.fix_xy, nxt.fix_h, nxt.res_l, nxt.z_model,
         kx, ky, kz, nxt.fix_std_m,

@@ -31,8 +31,9 @@ as learned after :data:`MIN_LEARN_S` of them. Pure: no clock, no I/O.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Final
+
+import msgspec
 
 from mkflight.conversions import NS_PER_S
 
@@ -64,6 +65,12 @@ MAX_GAS_COUNTS: Final = 255.0
 """A learned bias beyond this is not a bias (a stuck sensor): it is clamped."""
 
 
+def _clip(x: float, limit: float) -> float:
+    """``max(-limit, min(limit, x))`` in the builtins' order (NaN gives ``limit``), cheaper."""
+    x = x if x < limit else limit
+    return x if x > -limit else -limit
+
+
 class TimeMean:
     """An exponential mean over time that starts as a plain mean (no start-up bias)."""
 
@@ -80,12 +87,12 @@ class TimeMean:
         self.span_s += dt_s
         if self._decay[0] != dt_s:  # the FC's period repeats: one exp per new interval
             self._decay = (dt_s, 1.0 - math.exp(-dt_s / self.tau_s))
-        weight = max(dt_s / self.span_s, self._decay[1])
+        early, decay = dt_s / self.span_s, self._decay[1]
+        weight = decay if decay > early else early  # max(early, decay)
         self.value += weight * (x - self.value)
 
 
-@dataclass(frozen=True, slots=True)
-class LearnedAirframe:
+class LearnedAirframe(msgspec.Struct, frozen=True, gc=False):
     """What has been learned so far (None: not yet, see :data:`MIN_LEARN_S`).
 
     Attributes:
@@ -174,26 +181,29 @@ class AirframeLearner:
         if not 0.0 < dt_s <= MAX_SAMPLE_GAP_S:
             return
         values = (*acc_level_mps2, *f_body_mps2, gas_factor, gas_counts)
-        if not all(math.isfinite(v) for v in values) or (steady and gas_factor <= 0.0):
+        if not all(map(math.isfinite, values)) or (steady and gas_factor <= 0.0):
             return
         self._since_update += 1
         if self._learned is None or self._since_update >= UPDATE_EVERY:
             self._learned, self._since_update = None, 0
         if not steady:
             self._rest_s += dt_s
-        for i, (mean, a) in enumerate(zip(self._bias, acc_level_mps2, strict=True)):
-            weight = REST_WEIGHT_Z if i == 2 and not steady else 1.0
-            mean.add(max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, a)), dt_s * weight)
+        bx, by, bz = self._bias
+        ax, ay, az = acc_level_mps2
+        bx.add(_clip(ax, MAX_DIFF_MPS2), dt_s)
+        by.add(_clip(ay, MAX_DIFF_MPS2), dt_s)
+        bz.add(_clip(az, MAX_DIFF_MPS2), dt_s * (1.0 if steady else REST_WEIGHT_Z))
         if not steady:
             return
         self._steady_s += dt_s
         hover = gas_counts / gas_factor
         if math.isfinite(hover):
-            self._hover.add(max(0.0, min(MAX_GAS_COUNTS, hover)), dt_s)
+            hover = hover if hover < MAX_GAS_COUNTS else MAX_GAS_COUNTS  # min, then max
+            self._hover.add(hover if hover > 0.0 else 0.0, dt_s)
         for mean, f, f0 in zip(self._noise, source, last[1], strict=True):
             if not same_kind:  # the source changed: no difference this once
                 break
-            diff = max(-MAX_DIFF_MPS2, min(MAX_DIFF_MPS2, f - f0))
+            diff = _clip(f - f0, MAX_DIFF_MPS2)
             mean.add(0.5 * diff * diff, dt_s)
 
     @property

@@ -8,7 +8,7 @@ from __future__ import annotations
 import msgspec
 
 
-class LaserStep(msgspec.Struct, frozen=True):
+class LaserStep(msgspec.Struct, frozen=True, gc=False):
     """What the 100 ms log (TABLE III) needs from the last accepted pose.
 
     ``w_vel_*`` is the laser velocity in W (eq 19), ``b_vel_*`` the same in the heading
@@ -32,7 +32,7 @@ class LaserStep(msgspec.Struct, frozen=True):
     compensated: bool
 
 
-class EstimatorCounters(msgspec.Struct, frozen=True):
+class EstimatorCounters(msgspec.Struct, frozen=True, gc=False):
     """Counts of inputs the estimator refused or could not use (for ``flight.json``)."""
 
     imu_rejected: int = 0

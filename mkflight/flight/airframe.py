@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import msgspec
+
 from mkflight.config import Config
 from mkflight.control.altitude import hover_feedforward
 from mkflight.control.descent import Descent, DescentOutput, DescentParams
@@ -102,6 +104,20 @@ class FlightAirframe:
         self._lag: tuple[float, float] = (0.0, 0.0)  # (dt, the motors' lag factor)
         self._recent_hover = TimeMean(RECENT_HOVER_TAU_S)  # the gas flown in HOLD
         self._recent_t_ns: int | None = None  # its last sample's time
+        self._factor_of: tuple[ImuSample, float | None] | None = None  # the step's gas factor
+
+    def _gas_factor(self, imu: ImuSample) -> float | None:
+        """:func:`gas_factor` of ``imu``'s attitude and battery, once per sample.
+
+        The thrust model and the learner both ask for it on every step.
+        """
+        memo = self._factor_of
+        if memo is None or memo[0] is not imu:  # a sample is immutable: its identity will do
+            memo = self._factor_of = (
+                imu,
+                gas_factor(self.cfg, imu.pitch_rad, imu.roll_rad, imu.battery_v),
+            )
+        return memo[1]
 
     # ----------------------------------------------------------------- thrust model
     def thrust_up(
@@ -121,11 +137,12 @@ class FlightAirframe:
             if not flying or gas_counts <= 0:
                 return None
         else:
-            dt_s = max(0.0, (t_ns - prev[0]) / NS_PER_S)
+            dt_s = (t_ns - prev[0]) / NS_PER_S
+            dt_s = dt_s if dt_s > 0.0 else 0.0  # max(0.0, dt_s)
             if self._lag[0] != dt_s:  # one exp per new interval
                 self._lag = (dt_s, 1.0 - math.exp(-dt_s / THRUST_TAU_S))
             self._gas_lagged = (t_ns, prev[1] + (gas_counts - prev[1]) * self._lag[1])
-        factor = gas_factor(self.cfg, imu.pitch_rad, imu.roll_rad, imu.battery_v)
+        factor = self._gas_factor(imu)
         if factor is None:
             return None
         hover_now = self.hover_gas(factor, integral_gas) * factor
@@ -156,7 +173,7 @@ class FlightAirframe:
             on_floor: before take-off, motors off: the biases are learned at rest.
         """
         acc_l = self.estimator.last_acc_level
-        factor = gas_factor(self.cfg, imu.pitch_rad, imu.roll_rad, imu.battery_v)
+        factor = self._gas_factor(imu)
         if acc_l is None or factor is None:
             return
         at_rest = on_floor and gas_counts == 0 and est.height_valid
@@ -344,7 +361,7 @@ class FlightAirframe:
             gas_factor=1.0 if factor is None else factor,
             acc_up_mps2=self.acc_up(imu, fresh),
         )
-        return replace(est, height_m=v.height_m, vz_up_mps=v.vz_up_mps)
+        return msgspec.structs.replace(est, height_m=v.height_m, vz_up_mps=v.vz_up_mps)
 
     def _hat_model_vz(
         self,

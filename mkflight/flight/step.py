@@ -103,7 +103,7 @@ MAX_HOLD_OFFSET_M = 1.0
 """The largest HOLD set-point offset :meth:`FlightCore.set_hold_offset` accepts."""
 
 
-class ImuStepOutput(msgspec.Struct, frozen=True):
+class ImuStepOutput(msgspec.Struct, frozen=True, gc=False):
     """What one 50 ms step decided.
 
     Attributes:
@@ -256,14 +256,14 @@ class FlightCore:
         Returns the TABLE III row, or None before the estimator has a laser velocity.
         """
         if arrival_ns is not None:
-            self._now_ns = max(self._now_ns, arrival_ns)
+            self._now_ns = arrival_ns if arrival_ns > self._now_ns else self._now_ns
         self.counters.laser_steps += 1
         self._degenerate = degenerate
         used = False
         if pose is not None and not degenerate:
-            before = self.estimator.counters.pose_rejected
+            before = self.estimator.poses_rejected
             self.estimator.on_scan(pose, t_ns, height_m)  # = on_pose, then on_height
-            used = self.estimator.counters.pose_rejected == before
+            used = self.estimator.poses_rejected == before
             if used:
                 self._last_pose_arrival_ns = self._now_ns
         else:
@@ -353,7 +353,7 @@ class FlightCore:
         self.counters.imu_steps += 1
         if self._first_ns is None:
             self._first_ns = t_ns
-        self._now_ns = max(self._now_ns, t_ns)
+        self._now_ns = t_ns if t_ns > self._now_ns else self._now_ns
 
     def _estimate(self, imu: ImuSample, *, flying: bool) -> tuple[Estimate, bool]:
         """The estimate after ``imu``, and whether the estimator took it (fresh).

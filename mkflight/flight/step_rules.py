@@ -38,7 +38,7 @@ TOUCHDOWN_HEIGHT_M = 0.15
 """Below this height in LAND a degenerate scan does not raise the failsafe (touchdown)."""
 
 
-class PilotSticks(msgspec.Struct, frozen=True):
+class PilotSticks(msgspec.Struct, frozen=True, gc=False):
     """The pilot's sticks as the FC reports them (logged in TABLE IV), MK counts."""
 
     pitch_counts: int = 0
@@ -163,7 +163,7 @@ class CommandSource(enum.Enum):
     """No valid command this step: the last one sent again (SPEC §5 row 1)."""
 
 
-class CommandChoice(msgspec.Struct, frozen=True):
+class CommandChoice(msgspec.Struct, frozen=True, gc=False):
     """A step's command source and, except for the descent, the command itself.
 
     ``command`` is None exactly when ``source`` is DESCENT: the descent

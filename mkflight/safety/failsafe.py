@@ -102,8 +102,7 @@ _STOP_CAUSE = {
 }
 
 
-@dataclass(frozen=True, slots=True)
-class FailsafeInputs:
+class FailsafeInputs(msgspec.Struct, frozen=True, gc=False):
     """The health of every input at one step (SPEC §5).
 
     Attributes:
@@ -142,7 +141,7 @@ class TransitionEvent:
     detail: str = ""
 
 
-class FailsafeOutput(msgspec.Struct, frozen=True):
+class FailsafeOutput(msgspec.Struct, frozen=True, gc=False):
     """One step's decision.
 
     Attributes:
@@ -229,7 +228,8 @@ class Failsafe:
         """Evaluate every check at ``inp.t_ns`` and return the action (SPEC §5)."""
         s = self.safety
         t = inp.t_ns
-        dt_s = 0.0 if self._last_t_ns is None else max(0.0, (t - self._last_t_ns) * S_PER_NS)
+        dt_s = 0.0 if self._last_t_ns is None else (t - self._last_t_ns) * S_PER_NS
+        dt_s = dt_s if dt_s > 0.0 else 0.0  # max(0.0, dt_s)
         self._last_t_ns = t
         events: list[TransitionEvent] = []
         active: list[tuple[Cause, str]] = []
@@ -250,7 +250,7 @@ class Failsafe:
         # Row 3 (MK data stale) is the link's: see the module docstring.
         # Row 4: geofence.
         dx, dy = inp.x_m - self.home_x_m, inp.y_m - self.home_y_m
-        if math.isfinite(dx) and math.isfinite(dy) and max(abs(dx), abs(dy)) > s.box_m:
+        if math.isfinite(dx) and math.isfinite(dy) and (abs(dx) > s.box_m or abs(dy) > s.box_m):
             active.append((Cause.OUT_OF_BOX, f"offset ({dx:.2f}, {dy:.2f}) m"))
         if math.isfinite(inp.height_m) and inp.height_m > s.max_height_m:
             active.append((Cause.ABOVE_MAX_HEIGHT, f"height {inp.height_m:.2f} m"))
@@ -267,6 +267,10 @@ class Failsafe:
         if inp.pilot_override:
             active.append((Cause.PILOT_OVERRIDE, "pilot sticks / RC switch"))
 
+        if not active and not self._latched:  # the usual step: nothing raised, none latched
+            return FailsafeOutput(
+                FailsafeAction.NONE, (), (), False, self._battery_v, self._nonfinite_steps
+            )
         for cause, detail in active:
             if cause not in self._latched:
                 self._latched[cause] = _Latched(t, FailsafeAction.NONE)

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import math
-from dataclasses import astuple
 
+import msgspec
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -185,7 +185,7 @@ def imu_samples(draw: st.DrawFn, t_ns: int) -> ImuSample:
 
 
 def assert_finite(e: Estimate) -> None:
-    assert all(math.isfinite(v) for v in astuple(e) if isinstance(v, float)), e
+    assert all(math.isfinite(v) for v in msgspec.structs.astuple(e) if isinstance(v, float)), e
 
 
 @settings(max_examples=150, deadline=None)

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
+import msgspec
 import pytest
 
 from mkflight.config import Config
@@ -121,7 +121,7 @@ def test_a_degenerate_scan_counts_in_the_air_until_touchdown(
 ) -> None:
     inp = failsafe_inputs(
         level_imu(T_NS),
-        replace(BASE, height_m=height_m),
+        msgspec.structs.replace(BASE, height_m=height_m),
         phase=phase,
         values_finite=True,
         laser_age_s=0.1,
@@ -136,7 +136,7 @@ def test_failsafe_inputs_carry_the_step_values() -> None:
     imu = level_imu(T_NS, battery_v=11.1)
     inp = failsafe_inputs(
         imu,
-        replace(BASE, x_m=1.5, y_m=-0.5, height_m=0.7),
+        msgspec.structs.replace(BASE, x_m=1.5, y_m=-0.5, height_m=0.7),
         phase=Phase.HOLD,
         values_finite=False,
         laser_age_s=0.2,
@@ -159,7 +159,9 @@ def test_failsafe_inputs_carry_the_step_values() -> None:
 @pytest.mark.parametrize(("pose_valid", "height_valid"), [(False, True), (True, False)])
 def test_no_takeoff_without_a_valid_pose_and_height(pose_valid: bool, height_valid: bool) -> None:
     requests = PhaseRequests(takeoff=True, land=True, release=False, handshake_ok=True)
-    gated = takeoff_gate(requests, replace(BASE, pose_valid=pose_valid, height_valid=height_valid))
+    gated = takeoff_gate(
+        requests, msgspec.structs.replace(BASE, pose_valid=pose_valid, height_valid=height_valid)
+    )
     assert gated == PhaseRequests(takeoff=False, land=True, release=False, handshake_ok=True)
     assert takeoff_gate(requests, BASE) == requests
 

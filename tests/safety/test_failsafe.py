@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
+import msgspec
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -34,7 +34,7 @@ class Run:
 
     def step(self, **kw: object) -> FailsafeOutput:
         self.t_ns += STEP_NS
-        inp = dataclasses.replace(OK, t_ns=self.t_ns, **kw)  # type: ignore[arg-type]
+        inp = msgspec.structs.replace(OK, t_ns=self.t_ns, **kw)
         out = self.fs.update(inp)
         for e in out.events:
             assert e.t_ns == self.t_ns
