@@ -120,8 +120,7 @@ class RowFormatter:
         self._fmt = fmt
         self._int_flags = tuple(name in fmt.int_columns for name in fmt.columns)
         self._typed: tuple[Callable[[Value], str], ...] = tuple(
-            int.__repr__ if is_int else float.__repr__
-            for is_int in self._int_flags
+            int.__repr__ if is_int else float.__repr__ for is_int in self._int_flags
         )
         floats: dict[Value, str] = {}
         ints: dict[Value, str] = {}
