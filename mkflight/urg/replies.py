@@ -51,8 +51,8 @@ _STATUS_RE: Final = re.compile(rb"[0-9A-Z]{2}")
 _SCAN_ECHO_RE: Final = re.compile(r"(G[DS]|M[DS])(\d{4})(\d{4})(\d{2})(?:(\d)(\d{2}))?(;.*)?")
 
 _LF: Final = 0x0A
-_LOW6: Final = np.uint8(0x3F)  # a sum character's bits (§2.3), as numpy scalars: no
-_ZERO: Final = np.uint8(CHAR_OFFSET)  # conversion of a Python int per operation
+#: A byte sum modulo 256 to its sum character: its low 6 bits from '0' (§2.3).
+_SUM_CHARS: Final = bytes(((s & 0x3F) + CHAR_OFFSET) for s in range(256))
 _SUM: Final = "sum"
 _MALFORMED: Final = "malformed"
 
@@ -428,16 +428,19 @@ def _scan_data(blocks: list[bytes]) -> bytes | str:
     """
     full = BLOCK_CHARS + 1
     last = len(blocks) - 1
-    k = 0
-    while k < last and len(blocks[k]) == full:
-        k += 1
+    k = last  # every block but the last full (a scan's shape): checked without a loop
+    if last > 0 and not min(map(len, blocks[:last])) == max(map(len, blocks[:last])) == full:
+        k = 0
+        while k < last and len(blocks[k]) == full:
+            k += 1
     head = b""
     if k:
-        rows = np.frombuffer(b"".join(blocks[:k]), dtype=np.uint8).reshape(k, full)
-        chars = rows[:, :BLOCK_CHARS]
-        # the byte sum modulo 256 keeps its low 6 bits: uint8 sums are exact enough
-        sums = (chars.sum(axis=1, dtype=np.uint8) & _LOW6) + _ZERO
-        if sums.tobytes() != rows[:, BLOCK_CHARS].tobytes():
+        joined = b"".join(blocks[:k])
+        chars = np.frombuffer(joined, dtype=np.uint8).reshape(k, full)[:, :BLOCK_CHARS]
+        # the byte sum modulo 256 keeps its low 6 bits: uint8 sums are exact enough; the
+        # table turns each into its sum character, compared with every 65th byte
+        sums = chars.sum(axis=1, dtype=np.uint8).tobytes().translate(_SUM_CHARS)
+        if sums != joined[BLOCK_CHARS::full]:
             return _SUM
         head = chars.tobytes()
     if last < 0:
