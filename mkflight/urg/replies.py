@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Final
 
 import numpy as np
@@ -395,15 +396,15 @@ def _parse_scan(echo: str, status: str, body: list[bytes], chars: int) -> ScanRe
     joined = _scan_data(body[1:])
     if isinstance(joined, str):
         return joined
-    m = _SCAN_ECHO_RE.fullmatch(echo)
-    if m is None or (m[5] is None) != (echo[0] == "G"):
+    fields = _scan_echo(echo)
+    if fields is None:
         return _MALFORMED
     values = decode_array(joined, chars)
     try:
         timestamp_ms = decode_value(stamp[:4])
     except ValueError:
         return _MALFORMED
-    start, end, cluster = int(m[2]), int(m[3]), int(m[4])
+    start, end, cluster, remaining = fields
     if values is None or end < start or len(values) != value_count(start, end, cluster):
         return _MALFORMED
     return ScanReply(
@@ -414,8 +415,21 @@ def _parse_scan(echo: str, status: str, body: list[bytes], chars: int) -> ScanRe
         start_step=start,
         end_step=end,
         cluster=cluster,
-        remaining=int(m[6]) if m[6] is not None else None,
+        remaining=remaining,
     )
+
+
+@lru_cache(maxsize=16)
+def _scan_echo(echo: str) -> tuple[int, int, int, int | None] | None:
+    """Start, end, cluster and the remaining count of a GD/GS/MD/MS echo, None if malformed.
+
+    (§3.1-3.2; a G echo has no scan interval and count, an M echo has both.) Every scan of
+    a stream carries the same echo (the count stays 00 for an endless MD): remembered.
+    """
+    m = _SCAN_ECHO_RE.fullmatch(echo)
+    if m is None or (m[5] is None) != (echo[0] == "G"):
+        return None
+    return int(m[2]), int(m[3]), int(m[4]), (int(m[6]) if m[6] is not None else None)
 
 
 def _scan_data(blocks: list[bytes]) -> bytes | str:
