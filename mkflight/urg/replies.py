@@ -442,7 +442,7 @@ def _scan_data(blocks: list[bytes]) -> bytes | str:
     """
     full = BLOCK_CHARS + 1
     last = len(blocks) - 1
-    k = last  # every block but the last full (a scan's shape): checked without a loop
+    k = max(last, 0)  # every block but the last full (a scan's shape): checked in C
     if last > 0 and not min(map(len, blocks[:last])) == max(map(len, blocks[:last])) == full:
         k = 0
         while k < last and len(blocks[k]) == full:
