@@ -180,7 +180,10 @@ def level_points(
     r, cb, sb = ranges_m[ok], cb[ok], sb[ok]
     lx = cp * cb + sp * sr * sb
     minus_ly = -cr * sb
-    return np.stack((r * lx, r * minus_ly), axis=1)
+    points = np.empty((r.shape[0], 2))  # the products written in place: no stack copy
+    np.multiply(r, lx, out=points[:, 0])
+    np.multiply(r, minus_ly, out=points[:, 1])
+    return points
 
 
 @dataclass(frozen=True, slots=True)

@@ -42,7 +42,9 @@ COLUMNS = (
     "index",
 )
 INT_COLUMNS = frozenset(COLUMNS[6:])
-FORMAT = TableFormat(FILE_NAME, COLUMNS, INT_COLUMNS)
+#: The angles and accelerations are the MK's integer counts scaled: a few hundred
+#: distinct values, whose texts the writer remembers.
+FORMAT = TableFormat(FILE_NAME, COLUMNS, INT_COLUMNS, repeating=True)
 
 
 @dataclass(frozen=True, slots=True)

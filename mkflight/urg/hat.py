@@ -105,14 +105,21 @@ def hat_height(
     good.sort()
     median = _median(good)
     deviation = np.abs(good - median)
-    mad = _median(np.sort(deviation))
+    ordered = np.sort(deviation)
+    mad = _median(ordered)
     gate = max(3.0 * MAD_TO_SIGMA * mad, s.inlier_gate_m)
-    inliers = good[deviation <= gate]  # sorted, as ``good`` is
+    # every beam an inlier is the usual case: then the inliers are ``good`` itself, and
+    # their median and deviations the numbers just computed (bit for bit)
+    inliers = good if ordered[-1] <= gate else good[deviation <= gate]  # sorted
     n_used = inliers.size
     if n_used < max(s.min_beams, math.ceil(s.min_inlier_fraction * n_valid)):
         return _none(f"hat beams disagree ({n_used} of {n_valid} consistent)", n_valid, n_used)
-    inlier_median = _median(inliers)
-    spread = MAD_TO_SIGMA * _median(np.sort(np.abs(inliers - inlier_median)))
+    if inliers is good:
+        inlier_median, inlier_mad = median, mad
+    else:
+        inlier_median = _median(inliers)
+        inlier_mad = _median(np.sort(np.abs(inliers - inlier_median)))
+    spread = MAD_TO_SIGMA * inlier_mad
     if spread > s.max_spread_m:
         return _none(f"hat beams spread {spread:.3f} m", n_valid, n_used, spread)
     height = math.cos(pitch_rad) * math.cos(roll_rad) * inlier_median - s.offset_m

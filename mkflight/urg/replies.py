@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Final
 
 import numpy as np
@@ -51,8 +52,8 @@ _STATUS_RE: Final = re.compile(rb"[0-9A-Z]{2}")
 _SCAN_ECHO_RE: Final = re.compile(r"(G[DS]|M[DS])(\d{4})(\d{4})(\d{2})(?:(\d)(\d{2}))?(;.*)?")
 
 _LF: Final = 0x0A
-_LOW6: Final = np.uint8(0x3F)  # a sum character's bits (§2.3), as numpy scalars: no
-_ZERO: Final = np.uint8(CHAR_OFFSET)  # conversion of a Python int per operation
+#: A byte sum modulo 256 to its sum character: its low 6 bits from '0' (§2.3).
+_SUM_CHARS: Final = bytes(((s & 0x3F) + CHAR_OFFSET) for s in range(256))
 _SUM: Final = "sum"
 _MALFORMED: Final = "malformed"
 
@@ -395,15 +396,15 @@ def _parse_scan(echo: str, status: str, body: list[bytes], chars: int) -> ScanRe
     joined = _scan_data(body[1:])
     if isinstance(joined, str):
         return joined
-    m = _SCAN_ECHO_RE.fullmatch(echo)
-    if m is None or (m[5] is None) != (echo[0] == "G"):
+    fields = _scan_echo(echo)
+    if fields is None:
         return _MALFORMED
     values = decode_array(joined, chars)
     try:
         timestamp_ms = decode_value(stamp[:4])
     except ValueError:
         return _MALFORMED
-    start, end, cluster = int(m[2]), int(m[3]), int(m[4])
+    start, end, cluster, remaining = fields
     if values is None or end < start or len(values) != value_count(start, end, cluster):
         return _MALFORMED
     return ScanReply(
@@ -414,8 +415,21 @@ def _parse_scan(echo: str, status: str, body: list[bytes], chars: int) -> ScanRe
         start_step=start,
         end_step=end,
         cluster=cluster,
-        remaining=int(m[6]) if m[6] is not None else None,
+        remaining=remaining,
     )
+
+
+@lru_cache(maxsize=16)
+def _scan_echo(echo: str) -> tuple[int, int, int, int | None] | None:
+    """Start, end, cluster and the remaining count of a GD/GS/MD/MS echo, None if malformed.
+
+    (§3.1-3.2; a G echo has no scan interval and count, an M echo has both.) Every scan of
+    a stream carries the same echo (the count stays 00 for an endless MD): remembered.
+    """
+    m = _SCAN_ECHO_RE.fullmatch(echo)
+    if m is None or (m[5] is None) != (echo[0] == "G"):
+        return None
+    return int(m[2]), int(m[3]), int(m[4]), (int(m[6]) if m[6] is not None else None)
 
 
 def _scan_data(blocks: list[bytes]) -> bytes | str:
@@ -428,16 +442,19 @@ def _scan_data(blocks: list[bytes]) -> bytes | str:
     """
     full = BLOCK_CHARS + 1
     last = len(blocks) - 1
-    k = 0
-    while k < last and len(blocks[k]) == full:
-        k += 1
+    k = max(last, 0)  # every block but the last full (a scan's shape): checked in C
+    if last > 0 and not min(map(len, blocks[:last])) == max(map(len, blocks[:last])) == full:
+        k = 0
+        while k < last and len(blocks[k]) == full:
+            k += 1
     head = b""
     if k:
-        rows = np.frombuffer(b"".join(blocks[:k]), dtype=np.uint8).reshape(k, full)
-        chars = rows[:, :BLOCK_CHARS]
-        # the byte sum modulo 256 keeps its low 6 bits: uint8 sums are exact enough
-        sums = (chars.sum(axis=1, dtype=np.uint8) & _LOW6) + _ZERO
-        if sums.tobytes() != rows[:, BLOCK_CHARS].tobytes():
+        joined = b"".join(blocks[:k])
+        chars = np.frombuffer(joined, dtype=np.uint8).reshape(k, full)[:, :BLOCK_CHARS]
+        # the byte sum modulo 256 keeps its low 6 bits: uint8 sums are exact enough; the
+        # table turns each into its sum character, compared with every 65th byte
+        sums = chars.sum(axis=1, dtype=np.uint8).tobytes().translate(_SUM_CHARS)
+        if sums != joined[BLOCK_CHARS::full]:
             return _SUM
         head = chars.tobytes()
     if last < 0:

@@ -28,7 +28,7 @@ FloatArray = npt.NDArray[np.float64]
 def range_table_m(dmin_mm: int, dmax_mm: int) -> FloatArray:
     """Metres for every raw value 0..DMAX+1: ``v / 1000`` within [DMIN, DMAX], else NaN (§5).
 
-    Indexed by the values clipped to DMAX+1, it converts a whole scan in one lookup; each
+    Indexed by the values clipped to DMAX+1, it converts a whole scan in one ``take``; each
     entry is the same float64 division a value-by-value conversion makes.
     """
     mm = np.arange(dmax_mm + 2, dtype=np.float64)
@@ -51,7 +51,8 @@ class ScanStamper:
         limits = (params.dmin_mm, params.dmax_mm)
         if limits != self._table_limits:
             self._table, self._table_limits = range_table_m(*limits), limits
-        return self._table[np.minimum(reply.values_mm, params.dmax_mm + 1)]
+        # clipped to the table's last entry (DMAX+1: NaN) in the same call
+        return self._table.take(reply.values_mm, mode="clip")
 
     def reset(self) -> None:
         """Forget the timer's history: the sensor's timer was reset (RS)."""

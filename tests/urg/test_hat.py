@@ -116,3 +116,36 @@ def test_never_raises_and_never_a_wrong_kind_of_value(
     else:
         assert math.isnan(h.height_m)
         assert h.reason
+
+
+def _reference_hat(r: np.ndarray, pitch: float, roll: float) -> tuple[float, int, int, float]:
+    """The estimate written out with ``np.median``: inliers, their median, their spread."""
+    good = r[(r >= HAT.min_range_m) & (r <= HAT.max_range_m)]
+    median = np.median(good)
+    mad = np.median(np.abs(good - median))
+    inliers = good[np.abs(good - median) <= max(3.0 * 1.4826 * mad, HAT.inlier_gate_m)]
+    inlier_median = float(np.median(inliers))
+    spread = 1.4826 * float(np.median(np.abs(inliers - inlier_median)))
+    height = math.cos(pitch) * math.cos(roll) * inlier_median - HAT.offset_m
+    return height, good.size, inliers.size, spread
+
+
+@given(
+    st.floats(0.0, 2.0),
+    st.floats(-0.3, 0.3),
+    st.integers(0, 2**32 - 1),
+    st.lists(st.tuples(st.integers(0, N_HAT - 1), st.floats(-0.5, 0.5)), max_size=30),
+)
+def test_every_figure_is_the_median_formulations_bit_for_bit(
+    height_m: float, pitch: float, seed: int, outliers: list[tuple[int, float]]
+) -> None:
+    r = beams(height_m, pitch, -pitch / 2, seed=seed, noise_m=0.005)
+    for i, shift_m in outliers:  # with none, or few, every beam is an inlier
+        r[i] += shift_m
+    h = hat_height(r, pitch, -pitch / 2, HAT)
+    height, n_valid, n_used, spread = _reference_hat(r, pitch, -pitch / 2)
+    assert (h.beams_valid, h.beams_used) == (n_valid, n_used)
+    if h.valid or h.reason.startswith("hat beams spread"):
+        assert h.spread_m == spread
+    if h.valid:
+        assert h.height_m == height
