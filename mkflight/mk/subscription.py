@@ -75,6 +75,9 @@ class DebugSubscription:
         """
         self._tx = sender
         self._settings = settings
+        # in ns once here: each sample compares against them
+        self._gap_ns = int(settings.release_after_stale_s * NS_PER_S)
+        self._resubscribe_ns = int(settings.resubscribe_s * NS_PER_S)
         self._stats = stats
         self._cal = calibration
         self._clock = clock
@@ -122,8 +125,7 @@ class DebugSubscription:
         the release are taken again.
         """
         last = self._last_sample_ns
-        gap_ns = int(self._settings.release_after_stale_s * NS_PER_S)
-        if last is not None and self._tx.engaged and t_ns - last >= gap_ns:
+        if last is not None and self._tx.engaged and t_ns - last >= self._gap_ns:
             self._stats.samples_dropped += 1
             log.warning("mk_data_gap", port=self._port, gap_s=(t_ns - last) / NS_PER_S)
             self.wake()
@@ -158,7 +160,7 @@ class DebugSubscription:
         """The newest DebugOut as an :class:`ImuSample` (see ``MkLink.next_sample``)."""
         s = self._settings
         now = self._clock.now_ns()
-        if now - self._last_subscribe_ns >= int(s.resubscribe_s * NS_PER_S):
+        if now - self._last_subscribe_ns >= self._resubscribe_ns:
             self.subscribe()
         if self._want_version:
             self._want_version = False
