@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Callable
+from collections.abc import Callable, Coroutine
+from typing import Any
 
 import structlog
 
@@ -380,7 +381,7 @@ class MkLink:
         """Seconds since the last DebugOut (inf before the first)."""
         return self._rx.stale_for_s()
 
-    async def next_sample(self, timeout_s: float | None = None) -> ImuSample:
+    def next_sample(self, timeout_s: float | None = None) -> Coroutine[Any, Any, ImuSample]:
         """The newest DebugOut as an :class:`ImuSample`, renewing the subscription as due.
 
         Older samples the consumer did not pick up are skipped (counted as dropped). While
@@ -390,7 +391,7 @@ class MkLink:
         Raises:
             LinkError: the link failed, or nothing arrived within ``timeout_s``.
         """
-        return await self._rx.next_sample(timeout_s)
+        return self._rx.next_sample(timeout_s)  # its coroutine: one frame less to resume
 
     # ----- sending (delegated to the CommandSender, mkflight.mk.sender) -----------------
 
