@@ -83,7 +83,7 @@ class MkLink:
         self.stats.parser = self._parser.stats
         self.port = stream.name
         self.version: VersionInfo | None = None
-        self.last_debug: DebugOut | None = None
+        self._last_debug_frame: Frame | None = None
         self.last_ppm: Ppm | None = None
         self.labels: dict[int, str] = {}
         self._version_event = asyncio.Event()
@@ -312,8 +312,9 @@ class MkLink:
             return
         try:
             if frame.cmd == CMD_DEBUG_ANSWER:
-                self.last_debug = DebugOut.decode(frame)
-                self._rx.on_debug(self.last_debug, t_ns)
+                analog = DebugOut.analog_of(frame)
+                self._last_debug_frame = frame  # decoded whole only if asked for
+                self._rx.on_debug(analog, t_ns)
             elif frame.cmd == CMD_CONFIRM:
                 self._tx.on_confirm(Confirm.decode(frame).frame, t_ns)
             elif frame.cmd == CMD_VERSION_ANSWER:
@@ -352,6 +353,12 @@ class MkLink:
             raise self._error or LinkError(f"{self.port}: port closed")
 
     # ----- the consumer's side ---------------------------------------------------------
+
+    @property
+    def last_debug(self) -> DebugOut | None:
+        """The newest DebugOut received (None before the first)."""
+        frame = self._last_debug_frame
+        return None if frame is None else DebugOut.decode(frame)
 
     @property
     def error(self) -> LinkError | None:

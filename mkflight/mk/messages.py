@@ -198,6 +198,18 @@ class DebugOut:
             _payload(frame, cls.SIZE, "DebugOut")  # raises, saying why
         return cls((p[0], p[1]), _S16.unpack_from(p, 2), frame.addr)
 
+    @staticmethod
+    def analog_of(frame: Frame) -> tuple[int, ...]:
+        """Only the 32 analog values of a 'D' frame: what each step needs of it.
+
+        Raises:
+            ProtocolError: the frame is too short for a DebugOut.
+        """
+        p = frame.payload
+        if len(p) < DebugOut.SIZE:
+            _payload(frame, DebugOut.SIZE, "DebugOut")  # raises, saying why
+        return _S16.unpack_from(p, 2)
+
     def encode(self) -> bytes:
         """Encode as the FC sends it (vectors MK-07, MK-08); values must fit int16."""
         if len(self.analog) != ANALOG_COUNT:

@@ -32,9 +32,9 @@ from mkflight.clock import Clock
 from mkflight.conversions import NS_PER_S
 from mkflight.errors import CommandRangeError, LinkError
 from mkflight.mk.link_types import LinkSettings, LinkStats
-from mkflight.mk.messages import DebugOut, ExternControl, debug_request, version_request
+from mkflight.mk.messages import ExternControl, debug_request, version_request
 from mkflight.mk.sender import CommandSender
-from mkflight.mk.units import MkCalibration, imu_from_debug
+from mkflight.mk.units import MkCalibration, imu_from_analog
 from mkflight.msgs import ImuSample
 
 __all__ = ["FC_HOLD_S", "DebugSubscription"]
@@ -116,8 +116,8 @@ class DebugSubscription:
         """Drop the sample the consumer has not picked up (it came from an old port)."""
         self._latest = None
 
-    def on_debug(self, debug: DebugOut, t_ns: int) -> None:
-        """A DebugOut arrived at ``t_ns``: make it the newest sample, wake the consumer.
+    def on_debug(self, analog: tuple[int, ...], t_ns: int) -> None:
+        """A DebugOut (its analog values) arrived at ``t_ns``: the newest sample, wake.
 
         One that comes ``release_after_stale_s`` or more after the one before, with control
         taken, is not taken: the stale-data release was due before it was read (the
@@ -135,7 +135,7 @@ class DebugSubscription:
         self._stats.samples += 1
         if self._latest is not None:
             self._stats.samples_dropped += 1  # the consumer fell behind: newest wins
-        self._latest = imu_from_debug(debug, t_ns, self._cal)
+        self._latest = imu_from_analog(analog, t_ns, self._cal)
         if self._stale:
             self._stale = False
             self._renew_after_ns = _OFF
