@@ -239,6 +239,12 @@ class FlightApp:
         """Pre-flight, READY, the tasks, and the single way out (module docstring)."""
         started = ProcessTimes.now()
         error: BaseException | None = None
+        collecting = gc.isenabled()
+        # No collections during the pre-flight: the matcher's warm-up and the links'
+        # start-up allocate ~100k long-lived objects, and every young collection that
+        # spills into the older generations walks them all again; the one gc.collect()
+        # at READY finds whatever garbage they left.
+        gc.disable()
         with stop_signals(asyncio.get_running_loop(), self._on_signal):  # until released
             try:
                 self._preflight_task = asyncio.create_task(self.run_preflight(), name="preflight")
@@ -250,7 +256,11 @@ class FlightApp:
                     error = None  # stopped before take-off: nothing flew
                 else:
                     gc.collect()
-                    gc.freeze()  # imports and pre-flight objects: never walked again in flight
+                    # Imports and pre-flight objects: never walked again in flight ("the
+                    # permanent generation", CPython's gc.freeze() documentation).
+                    gc.freeze()
+                    if collecting:
+                        gc.enable()
                     self.gc_watch.install()
                     await self.policy.before_ready()
                     self.notifier.ready()
@@ -260,6 +270,8 @@ class FlightApp:
             except Exception as err:  # every failure leaves through the shutdown
                 error = err
             finally:
+                if collecting:
+                    gc.enable()  # also after a failed or stopped pre-flight
                 summary = await self._shutdown(error, started)
         if isinstance(error, PreflightError | FlightError):
             return FlightReport(1, str(error), summary)

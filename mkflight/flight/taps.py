@@ -22,6 +22,7 @@ class PortTaps:
         "_clock",
         "_laser_raw",
         "_mk_raw",
+        "_on_bytes",
         "_policy",
         "_recorders",
         "_stats",
@@ -41,6 +42,9 @@ class PortTaps:
         self._mk_raw, self._laser_raw = mk_raw, laser_raw
         self._clock = clock
         self._policy = policy
+        # The flight's policy ignores byte counts (a replay's counts them): no call then.
+        counts = type(policy).on_bytes is not FlightPolicy.on_bytes
+        self._on_bytes = policy.on_bytes if counts else None
         self._stats = stats
         #: when the newest ExternControl frame was written to the MK port (0: none yet)
         self.command_written_ns = 0
@@ -53,12 +57,14 @@ class PortTaps:
                 self.command_written_ns = t_ns
             elif data[2:3] == b"d":
                 self._stats.on_resubscribe()  # the FC answers at once and restarts its period
-        self._policy.on_bytes("mk", direction, len(data))
+        if self._on_bytes is not None:
+            self._on_bytes("mk", direction, len(data))
 
     def laser(self, direction: str, t_ns: int, data: bytes) -> None:
         """The laser port's tap: record."""
         self._laser_raw(direction, t_ns, data)
-        self._policy.on_bytes("laser", direction, len(data))
+        if self._on_bytes is not None:
+            self._on_bytes("laser", direction, len(data))
 
     def mark(self, port: str, kind: str, text: str) -> None:
         """An 'o' (opened) or 'c' (lost) record in ``port``'s raw recording."""

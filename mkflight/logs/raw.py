@@ -80,6 +80,8 @@ _KIND_OF_BYTE: Final = {b: k for k, b in _KIND_BYTE.items()}
 _HEADER = struct.Struct("<8sHHqq")  # magic, version, label length, start_wall_ns, start_t_ns
 _RECORD = struct.Struct("<qcI")  # t_ns, kind, payload length
 _pack_record = _RECORD.pack
+_RECORD_HEAD_BYTES: Final = _RECORD.size
+_DATA_KIND_BYTE: Final = {k: _KIND_BYTE[k] for k in _DATA_KINDS}
 _MAX_LABEL_BYTES: Final = 0xFFFF
 _MAX_PAYLOAD_BYTES: Final = 0xFFFF_FFFF
 #: Records are in time order; one more than a day after the previous is corrupt.
@@ -237,23 +239,25 @@ class RawRecorder:
             ValueError: ``direction`` is not 'r' or 'w' (a bug in the caller).
         """
         file = self._file
-        if file is not None and self.error is None and direction in _DATA_KINDS:
+        kind = _DATA_KIND_BYTE.get(direction)
+        if file is not None and self.error is None and kind is not None:
             # The common case in one write, without _record's checks and calls (a record
             # holds at most 4 GiB: a chunk read or written is never near that).
-            record = _pack_record(t_ns, _KIND_BYTE[direction], len(data)) + data
+            size = len(data)
+            record = _pack_record(t_ns, kind, size) + data
             try:
                 n = file.write(record)
-                if n != len(record):
+                if n != size + _RECORD_HEAD_BYTES:
                     self._write_all(memoryview(record)[n or 0 :])
             except OSError as err:
                 self._fail(err)
                 self.dropped += 1
                 return
             self.records += 1
-            if direction == "r":
-                self.bytes_read += len(data)
+            if kind == b"r":
+                self.bytes_read += size
             else:
-                self.bytes_written += len(data)
+                self.bytes_written += size
             return
         if direction not in _DATA_KINDS:
             msg = f"{self.path}: direction must be 'r' or 'w', got {direction!r}"

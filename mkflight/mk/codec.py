@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import binascii
 from dataclasses import dataclass
+from typing import NamedTuple
 
 START = 0x23  # '#'
 END = 0x0D  # '\r'
@@ -27,9 +28,12 @@ ADDR_NC = 2
 ADDR_MK3MAG = 3
 
 
-@dataclass(frozen=True, slots=True)
-class Frame:
-    """One decoded frame: address number, command character and decoded payload bytes."""
+class Frame(NamedTuple):
+    """One decoded frame: address number, command character and decoded payload bytes.
+
+    A named tuple: immutable as a frozen dataclass, but built in a third of the time
+    (the parser makes 2-3 a step).
+    """
 
     addr: int
     cmd: str
@@ -163,66 +167,91 @@ class FrameParser:
     def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
         """Consume ``data`` and return the complete, valid frames it finished."""
         stats = self.stats
-        stats.bytes_in += len(data)
+        view = bytes(data)  # the same object if it is bytes already
+        n = len(view)
+        stats.bytes_in += n
         frames: list[Frame] = []
         buf = self._buf
-        view = bytes(data)
         pos = 0
-        n = len(view)
         while pos < n:
-            if not buf:
-                start = view.find(b"#", pos)
-                if start < 0:
-                    stats.discarded_bytes += n - pos
-                    return frames
-                stats.discarded_bytes += start - pos
-                buf.append(START)
-                pos = start + 1
+            if buf:
+                pos = self._continue(view, pos, frames)
                 continue
-            # Inside a frame: look for its end or for a new start.
-            room = MAX_FRAME_BYTES - len(buf)
-            stop = min(n, pos + room)
-            end = view.find(b"\r", pos, stop)
-            restart = view.find(b"#", pos, stop if end < 0 else end)
-            if restart >= 0:
-                # A '#' always starts a new frame; the collected bytes are abandoned.
-                stats.discarded_bytes += len(buf) + (restart - pos)
-                buf.clear()
-                pos = restart
-                continue
-            if end >= 0:
-                buf += view[pos : end + 1]
-                pos = end + 1
-                frame = self._complete(buf)
-                buf.clear()
+            start = view.find(b"#", pos)
+            if start < 0:
+                stats.discarded_bytes += n - pos
+                break
+            stats.discarded_bytes += start - pos
+            # The common case: the whole frame is in this chunk, checked without a copy
+            # into the buffer.
+            end = view.find(b"\r", start + 1, start + MAX_FRAME_BYTES)
+            if end >= 0 and view.find(b"#", start + 1, end) < 0:
+                frame = self._complete(view[start : end + 1])
                 if frame is not None:
                     frames.append(frame)
+                pos = end + 1
                 continue
-            buf += view[pos:stop]
-            pos = stop
-            if len(buf) >= MAX_FRAME_BYTES:
-                stats.overflows += 1
-                stats.discarded_bytes += len(buf)
-                buf.clear()
+            buf.append(START)
+            pos = start + 1
         return frames
 
-    def _complete(self, raw: bytearray) -> Frame | None:
-        r"""Check and decode one ``'#'...'\\r'`` frame, counting it if it is bad."""
+    def _continue(self, view: bytes, pos: int, frames: list[Frame]) -> int:
+        """Go on with the frame in the buffer from ``view[pos]``; return where it stopped."""
         stats = self.stats
-        if len(raw) < MIN_FRAME_BYTES:
+        buf = self._buf
+        n = len(view)
+        room = MAX_FRAME_BYTES - len(buf)
+        stop = min(n, pos + room)
+        end = view.find(b"\r", pos, stop)
+        restart = view.find(b"#", pos, stop if end < 0 else end)
+        if restart >= 0:
+            # A '#' always starts a new frame; the collected bytes are abandoned.
+            stats.discarded_bytes += len(buf) + (restart - pos)
+            buf.clear()
+            return restart
+        if end >= 0:
+            buf += view[pos : end + 1]
+            frame = self._complete(bytes(buf))
+            buf.clear()
+            if frame is not None:
+                frames.append(frame)
+            return end + 1
+        buf += view[pos:stop]
+        if len(buf) >= MAX_FRAME_BYTES:
+            stats.overflows += 1
+            stats.discarded_bytes += len(buf)
+            buf.clear()
+        return stop
+
+    def _complete(self, raw: bytes) -> Frame | None:
+        r"""Check and decode one ``'#'...'\\r'`` frame, counting it if it is bad.
+
+        The checksum and the payload's decoding are :func:`checksum` and
+        :func:`decode_payload` written out (this runs for every frame received).
+        """
+        stats = self.stats
+        size = len(raw)
+        if size < MIN_FRAME_BYTES:
             stats.malformed += 1
-            stats.discarded_bytes += len(raw)
+            stats.discarded_bytes += size
             return None
-        body = memoryview(raw)[:-3]
-        if checksum(body) != raw[-3:-1]:
+        crc1 = raw[-3]
+        crc2 = raw[-2]
+        crc = (sum(raw) - crc1 - crc2 - END) % 4096
+        if crc1 != OFFSET + crc // 64 or crc2 != OFFSET + crc % 64:
             stats.crc_errors += 1
-            stats.discarded_bytes += len(raw)
+            stats.discarded_bytes += size
             return None
-        payload = decode_payload(raw[3:-3])
-        addr = raw[1] - ord("a")
-        if payload is None or not 0 <= addr <= 63:
+        addr = raw[1] - 0x61  # 'a'
+        payload: bytes | None = None
+        if (size - MIN_FRAME_BYTES) % 4 == 0 and 0 <= addr <= 63:
+            try:
+                payload = binascii.a2b_base64(raw[3:-3].translate(_TO_STD), strict_mode=True)
+            except binascii.Error:
+                payload = None
+        if payload is None:
             stats.malformed += 1
-            stats.discarded_bytes += len(raw)
+            stats.discarded_bytes += size
             return None
         stats.frames += 1
-        return Frame(addr=addr, cmd=chr(raw[2]), payload=payload)
+        return Frame(addr, chr(raw[2]), payload)

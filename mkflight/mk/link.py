@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Callable
+from collections.abc import Callable, Coroutine
+from typing import Any
 
 import structlog
 
@@ -82,7 +83,7 @@ class MkLink:
         self.stats.parser = self._parser.stats
         self.port = stream.name
         self.version: VersionInfo | None = None
-        self.last_debug: DebugOut | None = None
+        self._last_debug_frame: Frame | None = None
         self.last_ppm: Ppm | None = None
         self.labels: dict[int, str] = {}
         self._version_event = asyncio.Event()
@@ -311,8 +312,9 @@ class MkLink:
             return
         try:
             if frame.cmd == CMD_DEBUG_ANSWER:
-                self.last_debug = DebugOut.decode(frame)
-                self._rx.on_debug(self.last_debug, t_ns)
+                analog = DebugOut.analog_of(frame)
+                self._last_debug_frame = frame  # decoded whole only if asked for
+                self._rx.on_debug(analog, t_ns)
             elif frame.cmd == CMD_CONFIRM:
                 self._tx.on_confirm(Confirm.decode(frame).frame, t_ns)
             elif frame.cmd == CMD_VERSION_ANSWER:
@@ -353,6 +355,12 @@ class MkLink:
     # ----- the consumer's side ---------------------------------------------------------
 
     @property
+    def last_debug(self) -> DebugOut | None:
+        """The newest DebugOut received (None before the first)."""
+        frame = self._last_debug_frame
+        return None if frame is None else DebugOut.decode(frame)
+
+    @property
     def error(self) -> LinkError | None:
         """The error that ended the link, if any."""
         return self._error
@@ -380,7 +388,7 @@ class MkLink:
         """Seconds since the last DebugOut (inf before the first)."""
         return self._rx.stale_for_s()
 
-    async def next_sample(self, timeout_s: float | None = None) -> ImuSample:
+    def next_sample(self, timeout_s: float | None = None) -> Coroutine[Any, Any, ImuSample]:
         """The newest DebugOut as an :class:`ImuSample`, renewing the subscription as due.
 
         Older samples the consumer did not pick up are skipped (counted as dropped). While
@@ -390,7 +398,7 @@ class MkLink:
         Raises:
             LinkError: the link failed, or nothing arrived within ``timeout_s``.
         """
-        return await self._rx.next_sample(timeout_s)
+        return self._rx.next_sample(timeout_s)  # its coroutine: one frame less to resume
 
     # ----- sending (delegated to the CommandSender, mkflight.mk.sender) -----------------
 

@@ -193,8 +193,22 @@ class DebugOut:
     @classmethod
     def decode(cls, frame: Frame) -> DebugOut:
         """Decode a 'D' frame."""
-        p = _payload(frame, cls.SIZE, "DebugOut")
-        return cls(status=(p[0], p[1]), analog=_S16.unpack_from(p, 2), addr=frame.addr)
+        p = frame.payload
+        if len(p) < cls.SIZE:
+            _payload(frame, cls.SIZE, "DebugOut")  # raises, saying why
+        return cls((p[0], p[1]), _S16.unpack_from(p, 2), frame.addr)
+
+    @staticmethod
+    def analog_of(frame: Frame) -> tuple[int, ...]:
+        """Only the 32 analog values of a 'D' frame: what each step needs of it.
+
+        Raises:
+            ProtocolError: the frame is too short for a DebugOut.
+        """
+        p = frame.payload
+        if len(p) < DebugOut.SIZE:
+            _payload(frame, DebugOut.SIZE, "DebugOut")  # raises, saying why
+        return _S16.unpack_from(p, 2)
 
     def encode(self) -> bytes:
         """Encode as the FC sends it (vectors MK-07, MK-08); values must fit int16."""
@@ -227,7 +241,8 @@ _EC_RANGES: Final[dict[str, tuple[int, int]]] = {
     "frame": (0, 255),
     "config": (0, 255),
 }
-_EC_STRUCT = struct.Struct("<BBBbbbBbBBB")
+_EC_STRUCT = struct.Struct("<BBBbbbBbBBB")  # the byte ranges of _EC_RANGES, in field order
+_INT_ONLY: Final = {int}
 
 EC_VALID: Final = 0x01  # Config bit 0: take control
 EXTERN_FRAME_OFFSET: Final = 9  # the Frame byte inside the 11-byte payload
@@ -292,9 +307,30 @@ class ExternControl:
         Every field must be a finite whole number inside its wire range; NaN, inf, 127.5,
         -1 gas or 128 nick all raise, naming the field.
         """
-        if len(self.digital) != 2:
-            msg = f"ExternControl.digital needs 2 values, got {len(self.digital)}"
+        digital = self.digital
+        if len(digital) != 2:
+            msg = f"ExternControl.digital needs 2 values, got {len(digital)}"
             raise CommandRangeError(msg)
+        values = (
+            digital[0],
+            digital[1],
+            self.remote_buttons,
+            self.nick,
+            self.roll,
+            self.yaw,
+            self.gas,
+            self.height,
+            self.free,
+            self.frame,
+            self.config,
+        )
+        if set(map(type, values)) == _INT_ONLY:
+            # The common case in one pass: ints only, and struct's own range check is
+            # _EC_RANGES (the format's byte ranges); anything else gets the field's name.
+            try:
+                return _EC_STRUCT.pack(*values)
+            except struct.error:
+                pass  # out of range: the checks below name the field
         return _EC_STRUCT.pack(
             _wire_int("digital0", self.digital[0]),
             _wire_int("digital1", self.digital[1]),

@@ -31,11 +31,10 @@ import structlog
 from mkflight.clock import Clock
 from mkflight.conversions import NS_PER_S
 from mkflight.errors import CommandRangeError, LinkError
-from mkflight.io.stream import resolve_waiter
 from mkflight.mk.link_types import LinkSettings, LinkStats
-from mkflight.mk.messages import DebugOut, ExternControl, debug_request, version_request
+from mkflight.mk.messages import ExternControl, debug_request, version_request
 from mkflight.mk.sender import CommandSender
-from mkflight.mk.units import MkCalibration, imu_from_debug
+from mkflight.mk.units import MkCalibration, imu_from_analog
 from mkflight.msgs import ImuSample
 
 __all__ = ["FC_HOLD_S", "DebugSubscription"]
@@ -75,6 +74,9 @@ class DebugSubscription:
         """
         self._tx = sender
         self._settings = settings
+        # in ns once here: each sample compares against them
+        self._gap_ns = int(settings.release_after_stale_s * NS_PER_S)
+        self._resubscribe_ns = int(settings.resubscribe_s * NS_PER_S)
         self._stats = stats
         self._cal = calibration
         self._clock = clock
@@ -83,6 +85,8 @@ class DebugSubscription:
         self._check_failed = check_failed
         self._latest: ImuSample | None = None
         self._sample_waiter: asyncio.Future[None] | None = None
+        self._timer: asyncio.TimerHandle | None = None  # ends a wait (_wait_until)
+        self._wait_due = 0.0  # loop time at which the current wait ends
         self._last_subscribe_ns = _OFF
         self._last_sample_ns: int | None = None
         self._stale = False
@@ -112,8 +116,8 @@ class DebugSubscription:
         """Drop the sample the consumer has not picked up (it came from an old port)."""
         self._latest = None
 
-    def on_debug(self, debug: DebugOut, t_ns: int) -> None:
-        """A DebugOut arrived at ``t_ns``: make it the newest sample, wake the consumer.
+    def on_debug(self, analog: tuple[int, ...], t_ns: int) -> None:
+        """A DebugOut (its analog values) arrived at ``t_ns``: the newest sample, wake.
 
         One that comes ``release_after_stale_s`` or more after the one before, with control
         taken, is not taken: the stale-data release was due before it was read (the
@@ -122,8 +126,7 @@ class DebugSubscription:
         the release are taken again.
         """
         last = self._last_sample_ns
-        gap_ns = int(self._settings.release_after_stale_s * NS_PER_S)
-        if last is not None and self._tx.engaged and t_ns - last >= gap_ns:
+        if last is not None and self._tx.engaged and t_ns - last >= self._gap_ns:
             self._stats.samples_dropped += 1
             log.warning("mk_data_gap", port=self._port, gap_s=(t_ns - last) / NS_PER_S)
             self.wake()
@@ -132,7 +135,7 @@ class DebugSubscription:
         self._stats.samples += 1
         if self._latest is not None:
             self._stats.samples_dropped += 1  # the consumer fell behind: newest wins
-        self._latest = imu_from_debug(debug, t_ns, self._cal)
+        self._latest = imu_from_analog(analog, t_ns, self._cal)
         if self._stale:
             self._stale = False
             self._renew_after_ns = _OFF
@@ -158,7 +161,7 @@ class DebugSubscription:
         """The newest DebugOut as an :class:`ImuSample` (see ``MkLink.next_sample``)."""
         s = self._settings
         now = self._clock.now_ns()
-        if now - self._last_subscribe_ns >= int(s.resubscribe_s * NS_PER_S):
+        if now - self._last_subscribe_ns >= self._resubscribe_ns:
             self.subscribe()
         if self._want_version:
             self._want_version = False
@@ -185,21 +188,46 @@ class DebugSubscription:
                     msg = f"no DebugOut from {self._port} for {timeout_s:g} s"
                     raise LinkError(msg)
                 wait_s = min(wait_s, left_s)
-            await self._wait_for_sample(max(wait_s, 0.001))
+            # Await the bare future, here rather than in a helper coroutine (asyncio.wait_for
+            # would add an event-loop turn to every sample's path, a helper a frame to
+            # resume); the wake-up timer resolves it when the wait is over.
+            loop = asyncio.get_running_loop()
+            waiter = self._sample_waiter = loop.create_future()
+            self._wait_until(loop, loop.time() + max(wait_s, 0.001))
+            try:
+                await waiter
+            finally:
+                self._sample_waiter = None
         sample, self._latest = self._latest, None
         return sample
 
-    async def _wait_for_sample(self, wait_s: float) -> None:
-        # Await the bare future (asyncio.wait_for would add an event-loop turn to every
-        # sample's path); a timer resolves it when the wait is over.
-        loop = asyncio.get_running_loop()
-        waiter = self._sample_waiter = loop.create_future()
-        timer = loop.call_later(wait_s, resolve_waiter, waiter)
-        try:
-            await waiter
-        finally:
+    def _wait_until(self, loop: asyncio.AbstractEventLoop, due: float) -> None:
+        """Have the waiter resolved at loop time ``due`` unless a sample comes first.
+
+        One timer serves many waits: while samples flow, each wait ends ~50 ms later
+        than the one before and the timer armed for an earlier one stays; when it fires
+        before the newest wait's end it moves there without waking the consumer. A
+        timer armed and cancelled on every sample would cost more than that one move
+        every ``stale_s``. A wait that must end sooner than the timer is re-armed.
+        """
+        self._wait_due = due
+        timer = self._timer
+        if timer is not None:
+            if timer.when() <= due:
+                return
             timer.cancel()
-            self._sample_waiter = None
+        self._timer = loop.call_at(due, self._on_timer, loop)
+
+    def _on_timer(self, loop: asyncio.AbstractEventLoop) -> None:
+        """The wake-up timer fired: end the wait if it is due, else move to its end."""
+        timer, self._timer = self._timer, None
+        waiter = self._sample_waiter
+        if waiter is None or waiter.done():
+            return  # nobody waits: the next wait arms a timer again
+        if timer is not None and self._wait_due > timer.when():
+            self._timer = loop.call_at(self._wait_due, self._on_timer, loop)
+            return
+        waiter.set_result(None)
 
     def _on_stale(self) -> None:
         if not self._stale:

@@ -65,7 +65,11 @@ DEFAULT_CALIBRATION = MkCalibration.from_config(MkConfig())
 
 def imu_from_debug(debug: DebugOut, t_ns: int, cal: MkCalibration) -> ImuSample:
     """Convert one DebugOut into SI (SPEC §1 table)."""
-    a = debug.analog
+    return imu_from_analog(debug.analog, t_ns, cal)
+
+
+def imu_from_analog(a: tuple[int, ...], t_ns: int, cal: MkCalibration) -> ImuSample:
+    """Convert a DebugOut's 32 analog values into SI (SPEC §1 table)."""
     return ImuSample(
         t_ns=t_ns,
         pitch_rad=-a[ANALOG_ANGLE_NICK] * cal.angle_unit_rad,

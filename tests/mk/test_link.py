@@ -42,6 +42,7 @@ async def test_samples_are_converted_to_si_and_foreign_frames_dropped(
     assert sample.yaw_rad == pytest.approx(-1.553343, abs=1e-6)
     assert sample.battery_v == pytest.approx(11.8)
     assert sample.gas_counts == 120
+    assert link.last_debug == MK08  # decoded whole when asked for
     assert link.stats.foreign_frames == 1
     assert link.stats.parser.crc_errors == 0
 

@@ -243,6 +243,15 @@ def test_debug_out_wrong_count_and_status() -> None:
 def test_debug_out_short_payload() -> None:
     with pytest.raises(ProtocolError, match="DebugOut frame carries 63 bytes, needs 66"):
         DebugOut.decode(Frame(1, "D", bytes(63)))
+    with pytest.raises(ProtocolError, match="DebugOut frame carries 63 bytes, needs 66"):
+        DebugOut.analog_of(Frame(1, "D", bytes(63)))
+
+
+@given(st.lists(st.integers(-32768, 32767), min_size=32, max_size=32))
+def test_debug_out_analog_of_is_the_decoded_analog(analog: list[int]) -> None:
+    """What the link unpacks per sample is what the whole decoding gives."""
+    frame = parse_one(DebugOut(status=(3, 0), analog=tuple(analog)).encode())
+    assert DebugOut.analog_of(frame) == DebugOut.decode(frame).analog == tuple(analog)
 
 
 @given(
