@@ -58,6 +58,23 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     if absent:
         config.hook.pytest_deselected(items=absent)
         items[:] = keep
+    for item in items:
+        item.add_marker(pytest.mark.xdist_group(_xdist_group(item)))
+
+
+#: Folders whose conftest flies one flight for the whole session (``sim_flight``,
+#: ``recorded``): their files run in one worker, so the flight is flown once.
+ONE_FLIGHT_DIRS = ("logs", "security")
+
+
+def _xdist_group(item: pytest.Item) -> str:
+    """The worker group of ``item`` under ``pytest -n N --dist loadgroup`` (the README's
+    test command): its file, so that a module fixture's flights are flown once, or its
+    folder for the folders of :data:`ONE_FLIGHT_DIRS`."""
+    path = Path(item.path).resolve().relative_to(Path(__file__).resolve().parent)
+    if len(path.parts) > 1 and path.parts[0] in ONE_FLIGHT_DIRS:
+        return path.parts[0]
+    return path.as_posix()
 
 
 @pytest.fixture(scope="session")
