@@ -60,21 +60,44 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         items[:] = keep
     for item in items:
         item.add_marker(pytest.mark.xdist_group(_xdist_group(item)))
+    rank = {group: i for i, group in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(_xdist_group(item), len(rank)))  # stable
 
 
-#: Folders whose conftest flies one flight for the whole session (``sim_flight``,
-#: ``recorded``): their files run in one worker, so the flight is flown once.
-ONE_FLIGHT_DIRS = ("logs", "security")
+#: Files that run in one worker, one after the other (``pytest -n 2 --dist loadgroup``, the
+#: README's test command), by path prefix under tests/: a folder whose conftest flies one
+#: flight for the whole session, flown once so; and the two modules that fly several
+#: flights at once, so that their flights never add up on two cores (four and five at once
+#: fly reliably; nine starve each other now and then).
+ONE_WORKER = {
+    "logs/": "logs",  # sim_flight
+    "security/": "security",  # recorded
+    "faults/test_campaign.py": "fleets",
+    "integration/test_fly.py": "fleets",
+}
+
+#: The worker groups that take longest (their flights, in real time), handed out first so
+#: that the two workers end together (``--no-loadscope-reorder``: xdist would otherwise
+#: hand out the groups with the most tests first). Seconds on a quiet 2-core CI machine.
+LONGEST_FIRST = (
+    "fleets",  # 31 flights four at a time, then nine five at a time: ~240 s
+    "integration/test_replay.py",  # ~55 s
+    "integration/test_fly_faults_inprocess.py",  # ~50 s
+    "ground/test_live.py",  # ~40 s
+    "replay/test_damaged.py",  # ~40 s
+    "tools/test_soak.py",  # ~35 s
+    "logs",  # ~35 s
+    "test_lint.py",  # mypy --strict: ~30 s
+    "ground/test_report.py",  # ~25 s
+    "ground/test_export.py",  # ~20 s
+)
 
 
 def _xdist_group(item: pytest.Item) -> str:
-    """The worker group of ``item`` under ``pytest -n N --dist loadgroup`` (the README's
-    test command): its file, so that a module fixture's flights are flown once, or its
-    folder for the folders of :data:`ONE_FLIGHT_DIRS`."""
-    path = Path(item.path).resolve().relative_to(Path(__file__).resolve().parent)
-    if len(path.parts) > 1 and path.parts[0] in ONE_FLIGHT_DIRS:
-        return path.parts[0]
-    return path.as_posix()
+    """The worker group of ``item``: its file's path under tests/, or its
+    :data:`ONE_WORKER` group."""
+    path = Path(item.path).resolve().relative_to(Path(__file__).resolve().parent).as_posix()
+    return next((g for prefix, g in ONE_WORKER.items() if path.startswith(prefix)), path)
 
 
 @pytest.fixture(scope="session")
