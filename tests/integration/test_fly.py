@@ -3,7 +3,7 @@
 Every scenario is a real flight: ``mkflight sim`` in its own process serves the FC and
 the URG on ptys (with faults scheduled from the daemon's HOLD), and ``mkflight fly`` flies
 them as it would fly hardware. The flights are slow (real time), so the module flies them
-five at a time in one fixture and the tests then read their outcomes: exit code, stderr,
+four at a time in one fixture and the tests then read their outcomes: exit code, stderr,
 the flight folder (tables, events, flight.json, raw recordings) and the simulator's truth.
 """
 
@@ -47,7 +47,7 @@ from tests.limits_check import Counts, assert_within_limits, flown_config
 
 MKFLIGHT = [sys.executable, "-m", "mkflight"]
 FLIGHT_TIMEOUT_S = 150.0
-MAX_AT_ONCE = 5  # flights flown side by side (see _run_all)
+MAX_AT_ONCE = 4  # flights flown side by side, beside another pytest worker (see _run_all)
 
 
 #: Fault and signal times count from the daemon's HOLD: the simulator's fault clock starts
@@ -84,7 +84,7 @@ class Outcome:
     sigterm_to_exit_s: float | None = None
 
 
-SCENARIOS = [  # the longest first: five fly at a time (see _run_all)
+SCENARIOS = [  # the longest first: four fly at a time (see _run_all)
     Scenario("hover60", ["--duration", "60", "--height", "0.6"]),
     Scenario("readme", ["--sim", "--duration", "30"], external=False),
     Scenario("sigterm", [], sigterm_in_hold_s=9.0),
@@ -159,9 +159,10 @@ def _run_all(base: Path) -> dict[str, Outcome]:
     Each flight is a simulator and a daemon in real time, plus the daemon's matcher
     process, which runs niced: nine at once on two cores starved a matcher of CPU for
     300 ms now and then (a laser_stale landing, twice in six runs), so a new flight starts
-    when one ends. A thread per flight reads its output to its exit and reports it on a
-    queue the main thread blocks on; the HOLD line starts the simulator's fault clock
-    (SIGUSR1) and the SIGTERM timer. Nothing polls or sleeps.
+    when one ends; four at once, since the suite's other worker runs tests beside them. A
+    thread per flight reads its output to its exit and reports it on a queue the main
+    thread blocks on; the HOLD line starts the simulator's fault clock (SIGUSR1) and the
+    SIGTERM timer. Nothing polls or sleeps.
     """
     t0 = time.monotonic()
     term_sent: dict[str, float] = {}
@@ -331,7 +332,7 @@ def test_external_ptys_hover_precision_rates_and_columns(flights: dict[str, Outc
     assert len(read_table4(o.folder / "imu_50ms.log").rows) == len(steps)
     assert len(read_table3(o.folder / "laser_100ms.log").rows) == len(scans)
     timing = d["timing"]
-    # Five flights and their simulators share two cores in this module: a late DebugOut now
+    # Four flights, their simulators and another pytest worker share two cores: a late DebugOut now
     # and then is the machine's (the benchmark measures missed steps on a quiet machine).
     assert timing["missed_steps"] <= 0.01 * timing["steps"]
     _assert_commands_safe(o.folder)
