@@ -1,10 +1,10 @@
 """``mkflight fly --hover`` end to end on pseudo-terminals (issue 8).
 
 Every scenario is a real flight: ``mkflight sim`` in its own process serves the FC and
-the URG on ptys (with scheduled faults), and ``mkflight fly`` flies them as it would fly
-hardware. The flights are slow (real time), so the module flies them five at a time in
-one fixture and the tests then read their outcomes: exit code, stderr, the flight folder
-(tables, events, flight.json, raw recordings) and the simulator's truth.
+the URG on ptys (with faults scheduled from the daemon's HOLD), and ``mkflight fly`` flies
+them as it would fly hardware. The flights are slow (real time), so the module flies them
+four at a time in one fixture and the tests then read their outcomes: exit code, stderr,
+the flight folder (tables, events, flight.json, raw recordings) and the simulator's truth.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,7 +47,13 @@ from tests.limits_check import Counts, assert_within_limits, flown_config
 
 MKFLIGHT = [sys.executable, "-m", "mkflight"]
 FLIGHT_TIMEOUT_S = 150.0
-MAX_AT_ONCE = 5  # flights flown side by side (see _run_all)
+MAX_AT_ONCE = 4  # flights flown side by side, beside another pytest worker (see _run_all)
+
+
+#: Fault and signal times count from the daemon's HOLD: the simulator's fault clock starts
+#: on a SIGUSR1 (``--faults-on-sigusr1``) sent when the daemon logs HOLD, so a fault meets
+#: a hovering vehicle however slowly a loaded machine started the flight.
+HOLD_LINE = ('"phase"', '"HOLD"')
 
 
 @dataclass
@@ -55,9 +62,14 @@ class Scenario:
 
     name: str
     fly_args: list[str]
-    faults: list[str] = field(default_factory=list)
+    faults: list[str] = field(default_factory=list)  # times in s from HOLD
     external: bool = True  # a separate `mkflight sim` (else fly --sim)
-    sigterm_after_s: float | None = None
+    sigterm_in_hold_s: float | None = None
+
+    @property
+    def armed_at_hold(self) -> bool:
+        """Whether something happens at a time counted from HOLD."""
+        return bool(self.faults) or self.sigterm_in_hold_s is not None
 
 
 @dataclass
@@ -72,27 +84,27 @@ class Outcome:
     sigterm_to_exit_s: float | None = None
 
 
-SCENARIOS = [  # the longest first: five fly at a time (see _run_all)
+SCENARIOS = [  # the longest first: four fly at a time (see _run_all)
     Scenario("hover60", ["--duration", "60", "--height", "0.6"]),
     Scenario("readme", ["--sim", "--duration", "30"], external=False),
-    Scenario("sigterm", [], sigterm_after_s=16.0),
-    Scenario("fc_vanish", [], faults=["fc-vanish@14"]),
-    Scenario("laser_stall", ["--duration", "40"], faults=["laser-stall@14:30"]),
+    Scenario("sigterm", [], sigterm_in_hold_s=9.0),
+    Scenario("fc_vanish", [], faults=["fc-vanish@7"]),
+    Scenario("laser_stall", ["--duration", "40"], faults=["laser-stall@7:30"]),
     Scenario(
         "garbage",
         ["--duration", "24"],
         faults=[
-            "fc-garbage@10:3000",
-            "fc-corrupt@11:10",
-            "laser-garbage@12:3000",
-            "laser-badsum@13:1",
-            "laser-badsum@14:1",
-            "fc-garbage@15:3000",
+            "fc-garbage@3:3000",
+            "fc-corrupt@4:10",
+            "laser-garbage@5:3000",
+            "laser-badsum@6:1",
+            "laser-badsum@7:1",
+            "fc-garbage@8:3000",
         ],
     ),
-    Scenario("battery", ["--duration", "40"], faults=["battery@13:10.0"]),
-    Scenario("pilot", ["--duration", "40"], faults=["pilot-nick@14:60"]),
-    Scenario("laser_unplug", ["--duration", "40"], faults=["laser-vanish@14", "laser-replug@15"]),
+    Scenario("battery", ["--duration", "40"], faults=["battery@6:10.0"]),
+    Scenario("pilot", ["--duration", "40"], faults=["pilot-nick@7:60"]),
+    Scenario("laser_unplug", ["--duration", "40"], faults=["laser-vanish@7", "laser-replug@8"]),
 ]
 
 
@@ -107,15 +119,50 @@ def _read_paths(proc: subprocess.Popen[str]) -> tuple[str, str]:
     return paths["mk"], paths["laser"]
 
 
+def _is_info_line(line: str) -> bool:
+    """A log line at info level: asked for (``--log-level info``) only to see the HOLD, so
+    left out of the stderr the tests read, which is then the default level's."""
+    if not line.startswith("{"):
+        return False
+    try:
+        rec = json.loads(line)
+    except ValueError:
+        return False
+    return isinstance(rec, dict) and rec.get("level") == "info"
+
+
+def _read_to_end(proc: subprocess.Popen[str], on_hold: Callable[[], None]) -> tuple[str, str]:
+    """The daemon's stdout and stderr up to its exit; ``on_hold()`` runs when stderr logs
+    the HOLD."""
+    assert proc.stdout is not None
+    assert proc.stderr is not None
+    stdout = proc.stdout
+    out: list[str] = []
+    reader = threading.Thread(target=lambda: out.append(stdout.read()))
+    reader.start()
+    err: list[str] = []
+    holding = False
+    for line in proc.stderr:
+        if not holding and all(key in line for key in HOLD_LINE):
+            holding = True
+            on_hold()
+        if not _is_info_line(line):
+            err.append(line)
+    reader.join()
+    proc.wait()
+    return "".join(out), "".join(err)
+
+
 def _run_all(base: Path) -> dict[str, Outcome]:
     """Fly every scenario, at most ``MAX_AT_ONCE`` at a time; return their outcomes.
 
     Each flight is a simulator and a daemon in real time, plus the daemon's matcher
     process, which runs niced: nine at once on two cores starved a matcher of CPU for
     300 ms now and then (a laser_stale landing, twice in six runs), so a new flight starts
-    when one ends. A thread per flight waits for its exit (``communicate``) and reports it
-    on a queue the main thread blocks on; SIGTERM goes out from a timer thread at its time.
-    Nothing polls or sleeps.
+    when one ends; four at once, since the suite's other worker runs tests beside them. A
+    thread per flight reads its output to its exit and reports it on a queue the main
+    thread blocks on; the HOLD line starts the simulator's fault clock (SIGUSR1) and the
+    SIGTERM timer. Nothing polls or sleeps.
     """
     t0 = time.monotonic()
     term_sent: dict[str, float] = {}
@@ -124,23 +171,24 @@ def _run_all(base: Path) -> dict[str, Outcome]:
     finished: dict[str, tuple[int, str, str, float]] = {}
     done_q: queue.Queue[str] = queue.Queue()
 
-    def wait(name: str, proc: subprocess.Popen[str]) -> None:
-        try:
-            out, err = proc.communicate(timeout=FLIGHT_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, err = proc.communicate()
+    def wait(name: str, proc: subprocess.Popen[str], on_hold: Callable[[], None]) -> None:
+        killer = threading.Timer(FLIGHT_TIMEOUT_S, proc.kill)
+        killer.start()
+        out, err = _read_to_end(proc, on_hold)
+        killer.cancel()
         finished[name] = (proc.returncode, out, err, time.monotonic())
         done_q.put(name)
 
     def start(sc: Scenario) -> None:
-        started = time.monotonic()
         folder = base / sc.name
         sim: subprocess.Popen[str] | None = None
-        args = [*MKFLIGHT, "fly", "--hover", "--log-dir", str(folder), "--json", *sc.fly_args]
+        logs = ["--log-level", "info"] if sc.armed_at_hold else []
+        args = [*MKFLIGHT, *logs, "fly", "--hover", "--log-dir", str(folder), "--json"]
+        args += sc.fly_args
         if sc.external:
             folder.mkdir(parents=True)
             sim_args = [*MKFLIGHT, "sim", "--truth", str(folder / "truth.txt")]
+            sim_args += ["--faults-on-sigusr1"] if sc.faults else []
             for f in sc.faults:
                 sim_args += ["--fault", f]
             sim = subprocess.Popen(sim_args, stdout=subprocess.PIPE, text=True)
@@ -154,18 +202,21 @@ def _run_all(base: Path) -> dict[str, Outcome]:
             stdin=subprocess.DEVNULL,
         )
         sims[sc.name] = sim
-        threading.Thread(target=wait, args=(sc.name, fly)).start()
-        if sc.sigterm_after_s is not None:
 
-            def term(name: str = sc.name, proc: subprocess.Popen[str] = fly) -> None:
-                term_sent[name] = time.monotonic()
-                proc.send_signal(signal.SIGTERM)
+        def term() -> None:
+            if fly.poll() is None:
+                term_sent[sc.name] = time.monotonic()
+                fly.send_signal(signal.SIGTERM)
 
-            timer = threading.Timer(
-                max(0.0, sc.sigterm_after_s - (time.monotonic() - started)), term
-            )
-            timer.start()
-            timers.append(timer)
+        def on_hold() -> None:
+            if sim is not None and sc.faults:
+                sim.send_signal(signal.SIGUSR1)
+            if sc.sigterm_in_hold_s is not None:
+                timer = threading.Timer(sc.sigterm_in_hold_s, term)
+                timer.start()
+                timers.append(timer)
+
+        threading.Thread(target=wait, args=(sc.name, fly, on_hold)).start()
 
     pending = list(SCENARIOS)
     running = 0
@@ -281,7 +332,7 @@ def test_external_ptys_hover_precision_rates_and_columns(flights: dict[str, Outc
     assert len(read_table4(o.folder / "imu_50ms.log").rows) == len(steps)
     assert len(read_table3(o.folder / "laser_100ms.log").rows) == len(scans)
     timing = d["timing"]
-    # Five flights and their simulators share two cores in this module: a late DebugOut now
+    # Four flights, their simulators and another pytest worker share two cores: a late DebugOut now
     # and then is the machine's (the benchmark measures missed steps on a quiet machine).
     assert timing["missed_steps"] <= 0.01 * timing["steps"]
     _assert_commands_safe(o.folder)
