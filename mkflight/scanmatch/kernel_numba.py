@@ -29,12 +29,21 @@ from numba import njit
 from mkflight.scanmatch.kernel_numpy import (
     N_RESULTS,
     P_DEGENERACY_THRESHOLD,
+    P_DEGENERATE_DISTANCE_FACTOR,
     P_GATE_M,
     P_KEEP_FRACTION,
+    P_KEYFRAME_ANGLE_RAD,
+    P_KEYFRAME_DISTANCE_M,
+    P_MAX_GAP_M,
     P_MAX_ITERATIONS,
+    P_MAX_LINE_RMS_M,
+    P_MAX_PREDICTION_DT_S,
+    P_MAX_RMS_M,
+    P_MIN_CHORD_M,
     P_MIN_EIGENVALUE,
     P_MIN_GATE_M,
     P_MIN_LEVER2_M2,
+    P_MIN_MATCHED_FRACTION,
     P_MIN_MATCHES,
     P_NOISE_FLOOR,
     P_ROBUST_SCALE_M,
@@ -52,11 +61,30 @@ from mkflight.scanmatch.kernel_numpy import (
     R_TH,
     R_X,
     R_Y,
+    S_HAS_VELOCITY,
+    S_INCREMENT_X,
+    S_KF_X,
+    S_VELOCITY_X,
+    S_X,
+    T_CONVERGED,
+    T_DEGENERATE,
+    T_HANDLED,
+    T_ITERATIONS,
+    T_MATCH_X,
+    T_MATCHED_FRACTION,
+    T_MIN_INFORMATION,
+    T_N_POINTS,
+    T_NEW_KEYFRAME,
+    T_RMS,
+    T_VALID,
+    T_X,
     FloatArray,
     IntArray,
 )
 
 _JACOBI_SWEEPS = 12
+#: Points beyond this (m) are left to the Python path: no sum of them can overflow.
+_LARGEST_COORDINATE_M = 1e150
 #: Steps of the linear search from a nearby position before bisection takes over.
 _MAX_LOCAL_STEPS = 8
 
@@ -445,3 +473,174 @@ def icp_solve(
             gate_m = max(params[P_MIN_GATE_M], params[P_SHRINK] * gate_m)
     out[R_X], out[R_Y], out[R_TH] = pose[0], pose[1], pose[2]
     return out
+
+
+# ----- one scan of the keyframe matcher ----------------------------------------------------
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _wrap(angle_rad: float) -> float:
+    """:func:`kernel_numpy.wrap_angle`."""
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _compose(
+    a0: float, a1: float, a2: float, b0: float, b1: float, b2: float
+) -> tuple[float, float, float]:
+    """:func:`~mkflight.scanmatch.geometry.compose` on scalars (the same operations)."""
+    c, s = math.cos(a2), math.sin(a2)
+    return a0 + c * b0 - s * b1, a1 + s * b0 + c * b1, _wrap(a2 + b2)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _between(
+    a0: float, a1: float, a2: float, b0: float, b1: float, b2: float
+) -> tuple[float, float, float]:
+    """:func:`~mkflight.scanmatch.geometry.between`: the inverse of a, composed with b."""
+    c, s = math.cos(a2), math.sin(a2)
+    return _compose(-c * a0 - s * a1, s * a0 - c * a1, _wrap(-a2), b0, b1, b2)
+
+
+@njit(cache=True, error_model="numpy")
+def _plain(pts: FloatArray) -> bool:
+    """Every coordinate finite and small enough that no sum of them overflows."""
+    for i in range(pts.shape[0]):
+        for j in range(2):
+            if not abs(pts[i, j]) < _LARGEST_COORDINATE_M:
+                return False
+    return True
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _increment(
+    state: FloatArray, params: FloatArray, prior: tuple[float, float, float], dt_s: float
+) -> tuple[float, float, float]:
+    """The motion since the last scan: the prior when finite, else constant velocity.
+
+    ``KeyframeMatcher._predict``'s rules; ``dt_s`` NaN stands for no dt (the last increment).
+    """
+    if math.isfinite(prior[0]) and math.isfinite(prior[1]) and math.isfinite(prior[2]):
+        return prior
+    if math.isnan(dt_s):
+        return state[S_INCREMENT_X], state[S_INCREMENT_X + 1], state[S_INCREMENT_X + 2]
+    if state[S_HAS_VELOCITY] == 0.0 or not 0.0 < dt_s <= params[P_MAX_PREDICTION_DT_S]:
+        return 0.0, 0.0, 0.0
+    v = S_VELOCITY_X
+    return state[v] * dt_s, state[v + 1] * dt_s, state[v + 2] * dt_s
+
+
+@njit(cache=True, error_model="numpy")
+def _match(
+    pts: FloatArray,
+    kf: FloatArray,
+    guess: tuple[float, float, float],
+    params: FloatArray,
+    out: FloatArray,
+) -> None:
+    """:func:`~mkflight.scanmatch.icp.match`: the MatchResult's fields into ``out``."""
+    if not (math.isfinite(guess[0]) and math.isfinite(guess[1]) and math.isfinite(guess[2])):
+        guess = (0.0, 0.0, 0.0)
+    n = pts.shape[0]
+    out[T_MATCH_X], out[T_MATCH_X + 1], out[T_MATCH_X + 2] = guess
+    out[T_VALID] = out[T_DEGENERATE] = out[T_MATCHED_FRACTION] = 0.0
+    out[T_ITERATIONS] = out[T_CONVERGED] = out[T_MIN_INFORMATION] = 0.0
+    out[T_RMS] = math.nan
+    out[T_N_POINTS] = n
+    if n < params[P_MIN_MATCHES] or kf.shape[1] < 3:
+        return
+    res = icp_solve(pts, kf, np.array(guess), params)
+    if res[R_FAILED] != 0.0:
+        return
+    frac = res[R_INLIERS] / n
+    rms = res[R_RMS]
+    valid = (
+        math.isfinite(res[R_X])
+        and math.isfinite(res[R_Y])
+        and math.isfinite(res[R_TH])
+        and res[R_INLIERS] >= params[P_MIN_MATCHES]
+        and frac >= params[P_MIN_MATCHED_FRACTION]
+        and math.isfinite(rms)
+        and rms <= params[P_MAX_RMS_M]
+    )
+    if valid:
+        out[T_MATCH_X], out[T_MATCH_X + 1], out[T_MATCH_X + 2] = res[R_X], res[R_Y], res[R_TH]
+        out[T_VALID] = 1.0
+        out[T_DEGENERATE] = 1.0 if res[R_MIN_INFORMATION] < params[P_DEGENERACY_THRESHOLD] else 0.0
+    out[T_RMS], out[T_MATCHED_FRACTION] = rms, frac
+    out[T_ITERATIONS], out[T_CONVERGED] = res[R_ITERATIONS], res[R_CONVERGED]
+    out[T_MIN_INFORMATION] = res[R_MIN_INFORMATION]
+
+
+@njit(cache=True, error_model="numpy")
+def _new_keyframe(
+    pts: FloatArray, half_windows: IntArray, params: FloatArray, out: FloatArray
+) -> FloatArray:
+    """The keyframe policy: the scan's line rows when it becomes the keyframe, else (7, 0).
+
+    A new keyframe after ``keyframe_distance_m`` (x the degenerate factor in a degenerate
+    scene) or ``keyframe_angle_rad`` from the current one, or after a failed match; only
+    when at least 3 lines fit (``geometry.build_reference``'s rule).
+    """
+    rx, ry, rth = out[T_MATCH_X], out[T_MATCH_X + 1], out[T_MATCH_X + 2]
+    factor = params[P_DEGENERATE_DISTANCE_FACTOR] if out[T_DEGENERATE] == 1.0 else 1.0
+    limit_m = params[P_KEYFRAME_DISTANCE_M] * factor
+    far = math.hypot(rx, ry) > limit_m or abs(rth) > params[P_KEYFRAME_ANGLE_RAD]
+    if (far or out[T_VALID] != 1.0) and pts.shape[0] >= 5:
+        rows = reference_rows(
+            pts, half_windows, params[P_MIN_CHORD_M], params[P_MAX_GAP_M], params[P_MAX_LINE_RMS_M]
+        )
+        if rows.shape[1] >= 3:
+            return rows
+    return np.empty((7, 0))
+
+
+@njit(cache=True, error_model="numpy")
+def track_step(
+    pts: FloatArray,
+    kf: FloatArray,
+    state: FloatArray,
+    params: FloatArray,
+    half_windows: IntArray,
+    out: FloatArray,
+    prior: tuple[float, float, float],
+    dt_s: float,
+) -> FloatArray:
+    """One scan of :meth:`~mkflight.scanmatch.keyframe.KeyframeMatcher.update`, compiled.
+
+    The prediction (``prior`` when finite, NaN: none; else constant velocity over ``dt_s``,
+    NaN: unknown), the match against the keyframe's rows ``kf``, the world pose, the
+    keyframe policy (the new keyframe's line rows are returned; (7, 0): no new keyframe)
+    and the state update (``state``, ``S_*`` indices, in place), with the same operations
+    as the Python path so that the poses are the same to the bit. ``out`` (``T_*``) gets
+    the pose and the match's fields; ``out[T_HANDLED]`` is 0 (nothing changed) when a
+    point is not finite: the Python path handles such scans.
+    """
+    out[T_HANDLED] = 0.0
+    if not _plain(pts):
+        return np.empty((7, 0))
+    inc = _increment(state, params, prior, dt_s)
+    px, py, pth = state[S_X], state[S_X + 1], state[S_X + 2]
+    kx, ky, kth = state[S_KF_X], state[S_KF_X + 1], state[S_KF_X + 2]
+    predicted = _compose(px, py, pth, inc[0], inc[1], inc[2])
+    guess = _between(kx, ky, kth, predicted[0], predicted[1], predicted[2])
+    _match(pts, kf, guess, params, out)
+    pose = predicted
+    if out[T_VALID] == 1.0:
+        pose = _compose(kx, ky, kth, out[T_MATCH_X], out[T_MATCH_X + 1], out[T_MATCH_X + 2])
+    rows = _new_keyframe(pts, half_windows, params, out)
+    out[T_NEW_KEYFRAME] = 1.0 if rows.shape[1] > 0 else 0.0
+    if rows.shape[1] > 0:
+        state[S_KF_X], state[S_KF_X + 1], state[S_KF_X + 2] = pose
+    step = _between(px, py, pth, pose[0], pose[1], pose[2])
+    state[S_INCREMENT_X], state[S_INCREMENT_X + 1], state[S_INCREMENT_X + 2] = step
+    if 0.0 < dt_s <= params[P_MAX_PREDICTION_DT_S]:
+        v = S_VELOCITY_X
+        state[v], state[v + 1], state[v + 2] = step[0] / dt_s, step[1] / dt_s, step[2] / dt_s
+        state[S_HAS_VELOCITY] = 1.0
+    else:
+        state[S_HAS_VELOCITY] = 0.0
+    state[S_X], state[S_X + 1], state[S_X + 2] = pose
+    out[T_X], out[T_X + 1], out[T_X + 2] = pose
+    out[T_HANDLED] = 1.0
+    return rows
