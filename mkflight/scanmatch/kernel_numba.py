@@ -385,23 +385,80 @@ def _trim(work: FloatArray, k: int, keep_fraction: float) -> int:
 
 
 @njit(cache=True, error_model="numpy")
-def _solve_step(work: FloatArray, n_in: int, params: FloatArray, step: FloatArray) -> None:
-    """``step[:] = dx, dy, dth, rms, min_information`` (kernel_numpy._solve_step)."""
-    c = params[P_ROBUST_SCALE_M]
-    h = np.zeros((3, 3))
-    g = np.zeros(3)
+def _normal_equations(
+    work: FloatArray, n_in: int, robust_scale_m: float, h: FloatArray, g: FloatArray
+) -> tuple[float, float]:
+    """``h = J^T W J``, ``g = J^T W r`` of the pairs; returns ``(sum r^2, sum |m|^2)``.
+
+    The 3x3 sums are written out so that they stay in registers: the same products in
+    the same order as the loop over ``a, b`` (``(j_a w) j_b``), so the same bits.
+    """
+    c = robust_scale_m
+    h00 = h01 = h02 = h10 = h11 = h12 = h20 = h21 = h22 = 0.0
+    g0 = g1 = g2 = 0.0
     rr = 0.0
     ll = 0.0
     for i in range(n_in):
         r, nx, ny, mx, my = work[0, i], work[1, i], work[2, i], work[3, i], work[4, i]
-        jr = (nx, ny, ny * mx - nx * my)
+        j2 = ny * mx - nx * my
         wgt = 1.0 / (1.0 + (r * (1.0 / c)) ** 2) if c > 0.0 else 1.0
-        for a in range(3):
-            for b in range(3):
-                h[a, b] += jr[a] * wgt * jr[b]
-            g[a] += jr[a] * wgt * r
+        a0, a1, a2 = nx * wgt, ny * wgt, j2 * wgt
+        h00 += a0 * nx
+        h01 += a0 * ny
+        h02 += a0 * j2
+        h10 += a1 * nx
+        h11 += a1 * ny
+        h12 += a1 * j2
+        h20 += a2 * nx
+        h21 += a2 * ny
+        h22 += a2 * j2
+        g0 += a0 * r
+        g1 += a1 * r
+        g2 += a2 * r
         rr += r * r
         ll += mx * mx + my * my
+    h[0, 0], h[0, 1], h[0, 2] = h00, h01, h02
+    h[1, 0], h[1, 1], h[1, 2] = h10, h11, h12
+    h[2, 0], h[2, 1], h[2, 2] = h20, h21, h22
+    g[0], g[1], g[2] = g0, g1, g2
+    return rr, ll
+
+
+@njit(cache=True, error_model="numpy")
+def _structural_information(
+    work: FloatArray, n_in: int, coef: FloatArray, floor: float, sinfo: FloatArray
+) -> None:
+    """``sinfo[e]``: the structural information along eigen-direction e (module doc).
+
+    The mean squared projection of the Jacobian rows on ``coef[:, e]`` (the scaled
+    eigenvector), over the rows whose projection exceeds ``floor``; one pass for the
+    three directions, each sum in point order.
+    """
+    s0 = s1 = s2 = 0.0
+    c00, c10, c20 = coef[0, 0], coef[1, 0], coef[2, 0]
+    c01, c11, c21 = coef[0, 1], coef[1, 1], coef[2, 1]
+    c02, c12, c22 = coef[0, 2], coef[1, 2], coef[2, 2]
+    for i in range(n_in):
+        nx, ny, mx, my = work[1, i], work[2, i], work[3, i], work[4, i]
+        j2 = ny * mx - nx * my
+        p = c00 * nx + c10 * ny + c20 * j2
+        if abs(p) > floor:
+            s0 += p * p
+        p = c01 * nx + c11 * ny + c21 * j2
+        if abs(p) > floor:
+            s1 += p * p
+        p = c02 * nx + c12 * ny + c22 * j2
+        if abs(p) > floor:
+            s2 += p * p
+    sinfo[0], sinfo[1], sinfo[2] = s0 / n_in, s1 / n_in, s2 / n_in
+
+
+@njit(cache=True, error_model="numpy")
+def _solve_step(work: FloatArray, n_in: int, params: FloatArray, step: FloatArray) -> None:
+    """``step[:] = dx, dy, dth, rms, min_information`` (kernel_numpy._solve_step)."""
+    h = np.empty((3, 3))
+    g = np.empty(3)
+    rr, ll = _normal_equations(work, n_in, params[P_ROBUST_SCALE_M], h, g)
     lever2 = ll / n_in
     lever = math.sqrt(lever2) if lever2 > params[P_MIN_LEVER2_M2] else 1.0
     scale = np.array([1.0, 1.0, 1.0 / lever])
@@ -410,23 +467,17 @@ def _solve_step(work: FloatArray, n_in: int, params: FloatArray, step: FloatArra
         for b in range(3):
             hs[a, b] = h[a, b] * (scale[a] * scale[b]) / n_in
     evals, evecs = _eigh3(hs)
-    floor = params[P_NOISE_FLOOR]
+    coef = np.empty((3, 3))
+    for a in range(3):
+        for e in range(3):
+            coef[a, e] = evecs[a, e] * scale[a]
+    sinfo = np.empty(3)
+    _structural_information(work, n_in, coef, params[P_NOISE_FLOOR], sinfo)
     u = np.zeros(3)
     info_min = math.inf
     for e in range(3):
-        sinfo = 0.0
-        for i in range(n_in):
-            nx, ny, mx, my = work[1, i], work[2, i], work[3, i], work[4, i]
-            p = (
-                evecs[0, e] * scale[0] * nx
-                + evecs[1, e] * scale[1] * ny
-                + evecs[2, e] * scale[2] * (ny * mx - nx * my)
-            )
-            if abs(p) > floor:
-                sinfo += p * p
-        sinfo /= n_in
-        info_min = min(info_min, sinfo)
-        if sinfo > params[P_DEGENERACY_THRESHOLD] and evals[e] > params[P_MIN_EIGENVALUE]:
+        info_min = min(info_min, sinfo[e])
+        if sinfo[e] > params[P_DEGENERACY_THRESHOLD] and evals[e] > params[P_MIN_EIGENVALUE]:
             proj = 0.0
             for a in range(3):
                 proj += evecs[a, e] * (g[a] * scale[a] / n_in)
