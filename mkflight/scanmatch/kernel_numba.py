@@ -78,6 +78,7 @@ from mkflight.scanmatch.kernel_numpy import (
     T_RMS,
     T_VALID,
     T_X,
+    BoolArray,
     FloatArray,
     IntArray,
 )
@@ -138,7 +139,13 @@ def fit_lines(
             disc = math.sqrt(max(0.25 * (sxx - syy) ** 2 + sxy * sxy, 0.0))
             if not half_tr - disc <= max_rms_m * max_rms_m:
                 continue
-            if w != last and not (math.hypot(x[hi - 1] - x[lo], y[hi - 1] - y[lo]) >= min_chord_m):
+            # (a chord of finite points is >= 0: no test when the shortest is 0, as for
+            # sparse lasers; non-finite windows failed the RMS test above)
+            if (
+                w != last
+                and min_chord_m > 0.0
+                and not (math.hypot(x[hi - 1] - x[lo], y[hi - 1] - y[lo]) >= min_chord_m)
+            ):
                 continue
             phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
             off = abs(math.cos(phi) * (y[mid] - my) - math.sin(phi) * (x[mid] - mx))
@@ -695,3 +702,24 @@ def track_step(
     out[T_X], out[T_X + 1], out[T_X + 2] = pose
     out[T_HANDLED] = 1.0
     return rows
+
+
+@njit(cache=True, error_model="numpy")
+def beam_points(ranges_m: FloatArray, mask: BoolArray, directions: FloatArray) -> FloatArray:
+    """The (M, 2) points ``r * (cos, sin)`` of the beams in ``mask``, in beam order.
+
+    ``directions``: (N, 2) each beam's cosine and sine (computed once per beam layout by
+    the caller); the products are those of :func:`~mkflight.scanmatch.geometry.scan_to_points`.
+    """
+    m = 0
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            m += 1
+    out = np.empty((m, 2))
+    k = 0
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            out[k, 0] = ranges_m[i] * directions[i, 0]
+            out[k, 1] = ranges_m[i] * directions[i, 1]
+            k += 1
+    return out

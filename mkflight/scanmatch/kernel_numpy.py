@@ -29,6 +29,7 @@ import numpy.typing as npt
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
 
 #: Neighbours (in the reference's bearing order) tried each side of a point's bisection
 #: index: ``j - SEARCH_HALF_WIDTH .. j + SEARCH_HALF_WIDTH``.

@@ -24,6 +24,7 @@ from mkflight.scanmatch.kernel_numpy import (
     N_STATE,
     N_TRACK_OUT,
     N_TRACK_PARAMS,
+    BoolArray,
     FloatArray,
     IntArray,
 )
@@ -51,14 +52,16 @@ log = structlog.get_logger("mkflight.scanmatch")
 class Kernel:
     """One implementation: its name and its functions (as in :mod:`kernel_numpy`).
 
-    ``track_step``: a whole scan of the keyframe matcher in one call (compiled kernel
-    only; None: the matcher takes its Python path, which calls the other two).
+    ``track_step``: a whole scan of the keyframe matcher in one call; ``beam_points``: a
+    log's beams to points in one call (compiled kernel only; None: the callers take their
+    Python paths, with the same results).
     """
 
     name: Literal["numba", "numpy"]
     reference_rows: Callable[[FloatArray, IntArray, float, float, float], FloatArray]
     icp_solve: Callable[[FloatArray, FloatArray, FloatArray, FloatArray], FloatArray]
     track_step: TrackStep | None = None
+    beam_points: Callable[[FloatArray, BoolArray, FloatArray], FloatArray] | None = None
 
 
 NUMPY = Kernel("numpy", kernel_numpy.reference_rows, kernel_numpy.icp_solve)
@@ -84,6 +87,8 @@ def warm_up(kernel: Kernel) -> None:
         state, out = np.zeros(N_STATE), np.zeros(N_TRACK_OUT)
         windows = np.array([1, 2, 4], dtype=np.int64)
         kernel.track_step(pts, ref, state, track, windows, out, (0.01, 0.0, 0.0), 0.1)
+    if kernel.beam_points is not None:
+        kernel.beam_points(x, np.ones(x.shape[0], dtype=np.bool_), pts)
 
 
 @functools.cache
@@ -93,7 +98,11 @@ def _compiled() -> Kernel | None:
         from mkflight.scanmatch import kernel_numba
 
         kernel = Kernel(
-            "numba", kernel_numba.reference_rows, kernel_numba.icp_solve, kernel_numba.track_step
+            "numba",
+            kernel_numba.reference_rows,
+            kernel_numba.icp_solve,
+            kernel_numba.track_step,
+            kernel_numba.beam_points,
         )
         warm_up(kernel)
     except Exception as err:  # not installed, no cache directory, a compiler error

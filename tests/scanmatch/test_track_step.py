@@ -162,7 +162,8 @@ def old_points(rec: LaserRecord) -> np.ndarray:
     return scan_to_points(rec.ranges_m[mask], rec.angles_rad[mask], -math.inf, math.inf)
 
 
-def test_beam_points_are_those_of_beam_mask_and_scan_to_points() -> None:
+@pytest.mark.parametrize("kernel", ["numba", "numpy"])
+def test_beam_points_are_those_of_beam_mask_and_scan_to_points(kernel: str) -> None:
     rng = np.random.default_rng(4)
     urg = parse_carmen(gzip.decompress(HOVER_100_CLF.read_bytes()).decode().splitlines()).records
     urg = urg[:20]
@@ -170,7 +171,10 @@ def test_beam_points_are_those_of_beam_mask_and_scan_to_points() -> None:
     odd = dataclasses.replace(urg[0], angles_rad=urg[0].angles_rad.copy())
     odd.angles_rad[3] = math.nan  # a non-finite angle: its beam is not a point
     records.append(odd)
-    beam_points = lt._BeamPoints((150, 725))
+    flipped = dataclasses.replace(urg[1], ranges_m=urg[1].ranges_m[::-1].copy()[::-1])
+    records.append(flipped)  # ranges as a reversed view: the numpy formula takes it
+    compiled = kernels.load_kernel("numba").beam_points if kernel == "numba" else None
+    beam_points = lt._BeamPoints((150, 725), compiled)
     for rec in records:
         got, want = beam_points(rec), old_points(rec)
         assert got.shape == want.shape
