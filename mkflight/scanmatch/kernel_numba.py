@@ -84,10 +84,32 @@ from mkflight.scanmatch.kernel_numpy import (
 )
 
 _JACOBI_SWEEPS = 12
+#: A squared length this far (relative) from a squared limit decides a length comparison.
+_SQUARE_MARGIN = 1e-9
 #: Points beyond this (m) are left to the Python path: no sum of them can overflow.
 _LARGEST_COORDINATE_M = 1e150
 #: Steps of the linear search from a nearby position before bisection takes over.
 _MAX_LOCAL_STEPS = 8
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _hypot_above(dx: float, dy: float, length_m: float, or_equal: bool) -> bool:
+    """``math.hypot(dx, dy) > length_m`` (``>=`` when ``or_equal``), hypot only near the tie.
+
+    The squared length decides when it is more than :data:`_SQUARE_MARGIN` (relative)
+    from the squared limit: its rounding (a few 1e-16) and hypot's (under 1 ulp) cannot
+    cross that, so the answer is hypot's to the bit. Limits outside 1e-100..1e100 (where
+    a square could underflow or overflow) and NaN always take hypot.
+    """
+    if 1e-100 < length_m < 1e100:
+        d2 = dx * dx + dy * dy
+        l2 = length_m * length_m
+        if d2 > l2 * (1.0 + _SQUARE_MARGIN):
+            return True
+        if d2 < l2 * (1.0 - _SQUARE_MARGIN):
+            return False
+    d = math.hypot(dx, dy)
+    return d >= length_m if or_equal else d > length_m
 
 
 @njit(cache=True, error_model="numpy")
@@ -115,7 +137,7 @@ def fit_lines(
         cxy[i + 1] = cxy[i] + x[i] * y[i]
         cyy[i + 1] = cyy[i] + y[i] * y[i]
     for i in range(n - 1):
-        big = 1.0 if math.hypot(x[i + 1] - x[i], y[i + 1] - y[i]) > max_gap_m else 0.0
+        big = 1.0 if _hypot_above(x[i + 1] - x[i], y[i + 1] - y[i], max_gap_m, False) else 0.0
         cbig[i + 1] = cbig[i] + big
     chosen = np.zeros(n, dtype=np.bool_)
     last = half_windows[-1]
@@ -144,7 +166,7 @@ def fit_lines(
             if (
                 w != last
                 and min_chord_m > 0.0
-                and not (math.hypot(x[hi - 1] - x[lo], y[hi - 1] - y[lo]) >= min_chord_m)
+                and not _hypot_above(x[hi - 1] - x[lo], y[hi - 1] - y[lo], min_chord_m, True)
             ):
                 continue
             phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)

@@ -143,3 +143,26 @@ def test_the_flight_path_does_not_import_scipys_kd_tree() -> None:
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert proc.stdout.strip() == "[]"
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    dx=st.floats(-1e3, 1e3, allow_nan=False),
+    dy=st.floats(-1e3, 1e3, allow_nan=False),
+    nudge=st.sampled_from([-2, -1, 0, 1, 2, None]),
+    or_equal=st.booleans(),
+)
+def test_length_tests_answer_as_hypot_does(
+    dx: float, dy: float, nudge: int | None, or_equal: bool
+) -> None:
+    """The squared-length shortcut gives hypot's answer, also a few ulps from the tie."""
+    exact = math.hypot(dx, dy)
+    if nudge is None:
+        limits = [0.5, 0.12, 1e-120, 0.0, -1.0]
+    else:
+        limits = [exact]
+        for _ in range(abs(nudge)):
+            limits.append(math.nextafter(limits[-1], math.inf if nudge > 0 else -math.inf))
+    for limit in limits:
+        want = exact >= limit if or_equal else exact > limit
+        assert kernel_numba._hypot_above(dx, dy, limit, or_equal) == want
