@@ -68,7 +68,11 @@ NUMPY = Kernel("numpy", kernel_numpy.reference_rows, kernel_numpy.icp_solve)
 
 
 def warm_up(kernel: Kernel) -> None:
-    """Run each function once on a small square room, so that none compiles in flight."""
+    """Run each function the flight calls once on a small square room (none compiles in flight).
+
+    Nor does any load from numba's cache in flight. ``beam_points`` is for logs only: it
+    loads at its first call (``mkflight scanmatch``), not at every start of the daemon.
+    """
     t = np.linspace(-1.0, 1.0, 40)
     x = np.concatenate((np.full(40, 2.0), t * 2.0))
     y = np.concatenate((t * 2.0, np.full(40, 2.0)))
@@ -87,8 +91,6 @@ def warm_up(kernel: Kernel) -> None:
         state, out = np.zeros(N_STATE), np.zeros(N_TRACK_OUT)
         windows = np.array([1, 2, 4], dtype=np.int64)
         kernel.track_step(pts, ref, state, track, windows, out, (0.01, 0.0, 0.0), 0.1)
-    if kernel.beam_points is not None:
-        kernel.beam_points(x, np.ones(x.shape[0], dtype=np.bool_), pts)
 
 
 @functools.cache
