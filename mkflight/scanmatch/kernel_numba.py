@@ -205,7 +205,14 @@ def reference_rows(
             bearing[k] = math.atan2(lines[i, 1], lines[i, 0])
             index[k] = i
             k += 1
-    order = np.argsort(bearing, kind="mergesort")
+    # A laser's sweep leaves the centres in bearing order nearly always: then the stable
+    # sort's answer is the identity, found in one pass (a NaN or a descent: the sort).
+    in_order = True
+    for k in range(1, m):
+        if not bearing[k] >= bearing[k - 1]:
+            in_order = False
+            break
+    order = np.arange(m) if in_order else np.argsort(bearing, kind="mergesort")
     rows = np.empty((7, m))
     for k in range(m):
         i = index[order[k]]

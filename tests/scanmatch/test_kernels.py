@@ -174,3 +174,19 @@ def test_length_tests_answer_as_hypot_does(
     for limit in limits:
         want = exact >= limit if or_equal else exact > limit
         assert kernel_numba._hypot_above(dx, dy, limit, or_equal) == want
+
+
+@pytest.mark.parametrize("order", ["sweep", "reversed", "shuffled"])
+def test_reference_rows_sort_any_order_of_points(order: str) -> None:
+    """In sweep order the centres come sorted (the sort is skipped); otherwise it runs."""
+    pts = room_points(3, (0.1, 0.2, 0.3), FULL_TURN)
+    if order == "reversed":
+        pts = np.ascontiguousarray(pts[::-1])
+    elif order == "shuffled":  # blocks of the scan swapped: lines fit, bearings jump
+        pts = np.ascontiguousarray(np.concatenate((pts[400:], pts[:400])))
+    windows = np.asarray(LINE_HALF_WINDOWS, dtype=np.int64)
+    a = kernel_numpy.reference_rows(pts, windows, 0.12, 0.5, 0.03)
+    b = kernel_numba.reference_rows(pts, windows, 0.12, 0.5, 0.03)
+    assert a.shape == b.shape
+    assert a.shape[1] > 100
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
