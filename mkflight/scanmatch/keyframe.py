@@ -178,6 +178,7 @@ class KeyframeMatcher:
             and points_xy.dtype == np.float64
             and points_xy.shape[1:] == (2,)
             and points_xy.flags.c_contiguous
+            and points_xy.flags.writeable  # (numba types a read-only array apart: a compile)
         ):
             prior = _NAN_POSE if motion_prior is None else _floats(motion_prior)
             # NaN: no dt (evenly spaced scans); a NaN dt given is out of range (-1).

@@ -286,6 +286,8 @@ class _BeamPoints:
             and ranges.flags.c_contiguous
             and mask.dtype == np.bool_
             and mask.flags.c_contiguous
+            and ranges.flags.writeable  # (numba types read-only arrays apart: a compile)
+            and mask.flags.writeable
         ):
             return compiled(ranges, mask, self._directions)
         ranges = np.asarray(ranges[mask], dtype=np.float64)

@@ -79,6 +79,8 @@ def scans(seed: int) -> list[Scan]:
             pts = np.empty((0, 2))
         if i == 16:
             pts = pts.astype(np.float32)
+        if i == 17:
+            pts.flags.writeable = False  # numba would compile a variant for it
         if i == 40:
             pts = pts + np.array([1.5, -1.0])  # a jump: the match fails, a new keyframe
         out.append((pts, kwargs))
@@ -118,8 +120,8 @@ def test_the_compiled_step_tracks_exactly_as_the_python_path(
     calls = count_python_matches(monkeypatch)
     compiled = track(KeyframeMatcher(start_pose=(1.0, -2.0, 0.5)), walk)
     # The compiled step took every scan but the first (the first keyframe) and those
-    # it leaves to Python: the NaN point, the Fortran-ordered and the float32 arrays.
-    assert calls[0] == 3
+    # it leaves to Python: the NaN point, the Fortran-ordered, float32 and read-only arrays.
+    assert calls[0] == 4
     python_only(monkeypatch)
     calls[0] = 0
     reference = track(KeyframeMatcher(start_pose=(1.0, -2.0, 0.5)), walk)
