@@ -50,6 +50,7 @@ from mkflight.scanmatch.geometry import (
 )
 from mkflight.scanmatch.kernel_numpy import (
     CONSTANT_PARAMS,
+    N_TRACK_PARAMS,
     R_CONVERGED,
     R_FAILED,
     R_INLIERS,
@@ -139,6 +140,23 @@ class _Track:
 _last_params: list[tuple[ScanmatchConfig, FloatArray]] = []
 
 
+def _icp_params(cfg: ScanmatchConfig) -> list[float]:
+    """The ICP tuning in ``kernel_numpy.P_*`` order (up to ``N_PARAMS``)."""
+    return [
+        cfg.max_iterations,
+        cfg.max_correspondence_m,
+        cfg.min_correspondence_m,
+        cfg.keep_fraction,
+        cfg.robust_scale_m,
+        cfg.step_tolerance_m,
+        cfg.step_tolerance_rad,
+        cfg.min_matches,
+        cfg.noise_floor,
+        cfg.degeneracy_threshold,
+        *CONSTANT_PARAMS,
+    ]
+
+
 def _params(cfg: ScanmatchConfig) -> FloatArray:
     """The tuning as the kernels' ``params`` array, in ``kernel_numpy.P_*`` order.
 
@@ -147,23 +165,29 @@ def _params(cfg: ScanmatchConfig) -> FloatArray:
     """
     if _last_params and _last_params[0][0] is cfg:
         return _last_params[0][1]
+    params = np.array(_icp_params(cfg), dtype=np.float64)
+    _last_params[:] = [(cfg, params)]
+    return params
+
+
+def track_params(cfg: ScanmatchConfig, keyframe_args: tuple[float, ...]) -> FloatArray:
+    """The compiled ``track_step``'s ``params``: the ICP tuning, then the keyframe policy.
+
+    ``keyframe_args``: the degenerate distance factor, the longest prediction gap (s),
+    the line fits' shortest chord, largest gap and largest RMS (m), in ``P_*`` order.
+    """
     params = np.array(
         [
-            cfg.max_iterations,
-            cfg.max_correspondence_m,
-            cfg.min_correspondence_m,
-            cfg.keep_fraction,
-            cfg.robust_scale_m,
-            cfg.step_tolerance_m,
-            cfg.step_tolerance_rad,
-            cfg.min_matches,
-            cfg.noise_floor,
-            cfg.degeneracy_threshold,
-            *CONSTANT_PARAMS,
+            *_icp_params(cfg),
+            cfg.min_matched_fraction,
+            cfg.max_rms_m,
+            cfg.keyframe_distance_m,
+            cfg.keyframe_angle_rad,
+            *keyframe_args,
         ],
         dtype=np.float64,
     )
-    _last_params[:] = [(cfg, params)]
+    assert params.shape == (N_TRACK_PARAMS,)
     return params
 
 

@@ -29,12 +29,21 @@ from numba import njit
 from mkflight.scanmatch.kernel_numpy import (
     N_RESULTS,
     P_DEGENERACY_THRESHOLD,
+    P_DEGENERATE_DISTANCE_FACTOR,
     P_GATE_M,
     P_KEEP_FRACTION,
+    P_KEYFRAME_ANGLE_RAD,
+    P_KEYFRAME_DISTANCE_M,
+    P_MAX_GAP_M,
     P_MAX_ITERATIONS,
+    P_MAX_LINE_RMS_M,
+    P_MAX_PREDICTION_DT_S,
+    P_MAX_RMS_M,
+    P_MIN_CHORD_M,
     P_MIN_EIGENVALUE,
     P_MIN_GATE_M,
     P_MIN_LEVER2_M2,
+    P_MIN_MATCHED_FRACTION,
     P_MIN_MATCHES,
     P_NOISE_FLOOR,
     P_ROBUST_SCALE_M,
@@ -52,13 +61,55 @@ from mkflight.scanmatch.kernel_numpy import (
     R_TH,
     R_X,
     R_Y,
+    S_HAS_VELOCITY,
+    S_INCREMENT_X,
+    S_KF_X,
+    S_VELOCITY_X,
+    S_X,
+    T_CONVERGED,
+    T_DEGENERATE,
+    T_HANDLED,
+    T_ITERATIONS,
+    T_MATCH_X,
+    T_MATCHED_FRACTION,
+    T_MIN_INFORMATION,
+    T_N_POINTS,
+    T_NEW_KEYFRAME,
+    T_RMS,
+    T_VALID,
+    T_X,
+    BoolArray,
     FloatArray,
     IntArray,
 )
 
 _JACOBI_SWEEPS = 12
+#: A squared length this far (relative) from a squared limit decides a length comparison.
+_SQUARE_MARGIN = 1e-9
+#: Points beyond this (m) are left to the Python path: no sum of them can overflow.
+_LARGEST_COORDINATE_M = 1e150
 #: Steps of the linear search from a nearby position before bisection takes over.
 _MAX_LOCAL_STEPS = 8
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _hypot_above(dx: float, dy: float, length_m: float, or_equal: bool) -> bool:
+    """``math.hypot(dx, dy) > length_m`` (``>=`` when ``or_equal``), hypot only near the tie.
+
+    The squared length decides when it is more than :data:`_SQUARE_MARGIN` (relative)
+    from the squared limit: its rounding (a few 1e-16) and hypot's (under 1 ulp) cannot
+    cross that, so the answer is hypot's to the bit. Limits outside 1e-100..1e100 (where
+    a square could underflow or overflow) and NaN always take hypot.
+    """
+    if 1e-100 < length_m < 1e100:
+        d2 = dx * dx + dy * dy
+        l2 = length_m * length_m
+        if d2 > l2 * (1.0 + _SQUARE_MARGIN):
+            return True
+        if d2 < l2 * (1.0 - _SQUARE_MARGIN):
+            return False
+    d = math.hypot(dx, dy)
+    return d >= length_m if or_equal else d > length_m
 
 
 @njit(cache=True, error_model="numpy")
@@ -86,7 +137,7 @@ def fit_lines(
         cxy[i + 1] = cxy[i] + x[i] * y[i]
         cyy[i + 1] = cyy[i] + y[i] * y[i]
     for i in range(n - 1):
-        big = 1.0 if math.hypot(x[i + 1] - x[i], y[i + 1] - y[i]) > max_gap_m else 0.0
+        big = 1.0 if _hypot_above(x[i + 1] - x[i], y[i + 1] - y[i], max_gap_m, False) else 0.0
         cbig[i + 1] = cbig[i] + big
     chosen = np.zeros(n, dtype=np.bool_)
     last = half_windows[-1]
@@ -110,7 +161,13 @@ def fit_lines(
             disc = math.sqrt(max(0.25 * (sxx - syy) ** 2 + sxy * sxy, 0.0))
             if not half_tr - disc <= max_rms_m * max_rms_m:
                 continue
-            if w != last and not (math.hypot(x[hi - 1] - x[lo], y[hi - 1] - y[lo]) >= min_chord_m):
+            # (a chord of finite points is >= 0: no test when the shortest is 0, as for
+            # sparse lasers; non-finite windows failed the RMS test above)
+            if (
+                w != last
+                and min_chord_m > 0.0
+                and not _hypot_above(x[hi - 1] - x[lo], y[hi - 1] - y[lo], min_chord_m, True)
+            ):
                 continue
             phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
             off = abs(math.cos(phi) * (y[mid] - my) - math.sin(phi) * (x[mid] - mx))
@@ -148,7 +205,14 @@ def reference_rows(
             bearing[k] = math.atan2(lines[i, 1], lines[i, 0])
             index[k] = i
             k += 1
-    order = np.argsort(bearing, kind="mergesort")
+    # A laser's sweep leaves the centres in bearing order nearly always: then the stable
+    # sort's answer is the identity, found in one pass (a NaN or a descent: the sort).
+    in_order = True
+    for k in range(1, m):
+        if not bearing[k] >= bearing[k - 1]:
+            in_order = False
+            break
+    order = np.arange(m) if in_order else np.argsort(bearing, kind="mergesort")
     rows = np.empty((7, m))
     for k in range(m):
         i = index[order[k]]
@@ -357,23 +421,80 @@ def _trim(work: FloatArray, k: int, keep_fraction: float) -> int:
 
 
 @njit(cache=True, error_model="numpy")
-def _solve_step(work: FloatArray, n_in: int, params: FloatArray, step: FloatArray) -> None:
-    """``step[:] = dx, dy, dth, rms, min_information`` (kernel_numpy._solve_step)."""
-    c = params[P_ROBUST_SCALE_M]
-    h = np.zeros((3, 3))
-    g = np.zeros(3)
+def _normal_equations(
+    work: FloatArray, n_in: int, robust_scale_m: float, h: FloatArray, g: FloatArray
+) -> tuple[float, float]:
+    """``h = J^T W J``, ``g = J^T W r`` of the pairs; returns ``(sum r^2, sum |m|^2)``.
+
+    The 3x3 sums are written out so that they stay in registers: the same products in
+    the same order as the loop over ``a, b`` (``(j_a w) j_b``), so the same bits.
+    """
+    c = robust_scale_m
+    h00 = h01 = h02 = h10 = h11 = h12 = h20 = h21 = h22 = 0.0
+    g0 = g1 = g2 = 0.0
     rr = 0.0
     ll = 0.0
     for i in range(n_in):
         r, nx, ny, mx, my = work[0, i], work[1, i], work[2, i], work[3, i], work[4, i]
-        jr = (nx, ny, ny * mx - nx * my)
+        j2 = ny * mx - nx * my
         wgt = 1.0 / (1.0 + (r * (1.0 / c)) ** 2) if c > 0.0 else 1.0
-        for a in range(3):
-            for b in range(3):
-                h[a, b] += jr[a] * wgt * jr[b]
-            g[a] += jr[a] * wgt * r
+        a0, a1, a2 = nx * wgt, ny * wgt, j2 * wgt
+        h00 += a0 * nx
+        h01 += a0 * ny
+        h02 += a0 * j2
+        h10 += a1 * nx
+        h11 += a1 * ny
+        h12 += a1 * j2
+        h20 += a2 * nx
+        h21 += a2 * ny
+        h22 += a2 * j2
+        g0 += a0 * r
+        g1 += a1 * r
+        g2 += a2 * r
         rr += r * r
         ll += mx * mx + my * my
+    h[0, 0], h[0, 1], h[0, 2] = h00, h01, h02
+    h[1, 0], h[1, 1], h[1, 2] = h10, h11, h12
+    h[2, 0], h[2, 1], h[2, 2] = h20, h21, h22
+    g[0], g[1], g[2] = g0, g1, g2
+    return rr, ll
+
+
+@njit(cache=True, error_model="numpy")
+def _structural_information(
+    work: FloatArray, n_in: int, coef: FloatArray, floor: float, sinfo: FloatArray
+) -> None:
+    """``sinfo[e]``: the structural information along eigen-direction e (module doc).
+
+    The mean squared projection of the Jacobian rows on ``coef[:, e]`` (the scaled
+    eigenvector), over the rows whose projection exceeds ``floor``; one pass for the
+    three directions, each sum in point order.
+    """
+    s0 = s1 = s2 = 0.0
+    c00, c10, c20 = coef[0, 0], coef[1, 0], coef[2, 0]
+    c01, c11, c21 = coef[0, 1], coef[1, 1], coef[2, 1]
+    c02, c12, c22 = coef[0, 2], coef[1, 2], coef[2, 2]
+    for i in range(n_in):
+        nx, ny, mx, my = work[1, i], work[2, i], work[3, i], work[4, i]
+        j2 = ny * mx - nx * my
+        p = c00 * nx + c10 * ny + c20 * j2
+        if abs(p) > floor:
+            s0 += p * p
+        p = c01 * nx + c11 * ny + c21 * j2
+        if abs(p) > floor:
+            s1 += p * p
+        p = c02 * nx + c12 * ny + c22 * j2
+        if abs(p) > floor:
+            s2 += p * p
+    sinfo[0], sinfo[1], sinfo[2] = s0 / n_in, s1 / n_in, s2 / n_in
+
+
+@njit(cache=True, error_model="numpy")
+def _solve_step(work: FloatArray, n_in: int, params: FloatArray, step: FloatArray) -> None:
+    """``step[:] = dx, dy, dth, rms, min_information`` (kernel_numpy._solve_step)."""
+    h = np.empty((3, 3))
+    g = np.empty(3)
+    rr, ll = _normal_equations(work, n_in, params[P_ROBUST_SCALE_M], h, g)
     lever2 = ll / n_in
     lever = math.sqrt(lever2) if lever2 > params[P_MIN_LEVER2_M2] else 1.0
     scale = np.array([1.0, 1.0, 1.0 / lever])
@@ -382,23 +503,17 @@ def _solve_step(work: FloatArray, n_in: int, params: FloatArray, step: FloatArra
         for b in range(3):
             hs[a, b] = h[a, b] * (scale[a] * scale[b]) / n_in
     evals, evecs = _eigh3(hs)
-    floor = params[P_NOISE_FLOOR]
+    coef = np.empty((3, 3))
+    for a in range(3):
+        for e in range(3):
+            coef[a, e] = evecs[a, e] * scale[a]
+    sinfo = np.empty(3)
+    _structural_information(work, n_in, coef, params[P_NOISE_FLOOR], sinfo)
     u = np.zeros(3)
     info_min = math.inf
     for e in range(3):
-        sinfo = 0.0
-        for i in range(n_in):
-            nx, ny, mx, my = work[1, i], work[2, i], work[3, i], work[4, i]
-            p = (
-                evecs[0, e] * scale[0] * nx
-                + evecs[1, e] * scale[1] * ny
-                + evecs[2, e] * scale[2] * (ny * mx - nx * my)
-            )
-            if abs(p) > floor:
-                sinfo += p * p
-        sinfo /= n_in
-        info_min = min(info_min, sinfo)
-        if sinfo > params[P_DEGENERACY_THRESHOLD] and evals[e] > params[P_MIN_EIGENVALUE]:
+        info_min = min(info_min, sinfo[e])
+        if sinfo[e] > params[P_DEGENERACY_THRESHOLD] and evals[e] > params[P_MIN_EIGENVALUE]:
             proj = 0.0
             for a in range(3):
                 proj += evecs[a, e] * (g[a] * scale[a] / n_in)
@@ -444,4 +559,196 @@ def icp_solve(
         if step_m < params[P_SHRINK_BELOW_M] and abs(dth) < params[P_SHRINK_BELOW_RAD]:
             gate_m = max(params[P_MIN_GATE_M], params[P_SHRINK] * gate_m)
     out[R_X], out[R_Y], out[R_TH] = pose[0], pose[1], pose[2]
+    return out
+
+
+# ----- one scan of the keyframe matcher ----------------------------------------------------
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _wrap(angle_rad: float) -> float:
+    """:func:`kernel_numpy.wrap_angle`."""
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _compose(
+    a0: float, a1: float, a2: float, b0: float, b1: float, b2: float
+) -> tuple[float, float, float]:
+    """:func:`~mkflight.scanmatch.geometry.compose` on scalars (the same operations)."""
+    c, s = math.cos(a2), math.sin(a2)
+    return a0 + c * b0 - s * b1, a1 + s * b0 + c * b1, _wrap(a2 + b2)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _between(
+    a0: float, a1: float, a2: float, b0: float, b1: float, b2: float
+) -> tuple[float, float, float]:
+    """:func:`~mkflight.scanmatch.geometry.between`: the inverse of a, composed with b."""
+    c, s = math.cos(a2), math.sin(a2)
+    return _compose(-c * a0 - s * a1, s * a0 - c * a1, _wrap(-a2), b0, b1, b2)
+
+
+@njit(cache=True, error_model="numpy")
+def _plain(pts: FloatArray) -> bool:
+    """Every coordinate finite and small enough that no sum of them overflows."""
+    for i in range(pts.shape[0]):
+        for j in range(2):
+            if not abs(pts[i, j]) < _LARGEST_COORDINATE_M:
+                return False
+    return True
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _increment(
+    state: FloatArray, params: FloatArray, prior: tuple[float, float, float], dt_s: float
+) -> tuple[float, float, float]:
+    """The motion since the last scan: the prior when finite, else constant velocity.
+
+    ``KeyframeMatcher._predict``'s rules; ``dt_s`` NaN stands for no dt (the last increment).
+    """
+    if math.isfinite(prior[0]) and math.isfinite(prior[1]) and math.isfinite(prior[2]):
+        return prior
+    if math.isnan(dt_s):
+        return state[S_INCREMENT_X], state[S_INCREMENT_X + 1], state[S_INCREMENT_X + 2]
+    if state[S_HAS_VELOCITY] == 0.0 or not 0.0 < dt_s <= params[P_MAX_PREDICTION_DT_S]:
+        return 0.0, 0.0, 0.0
+    v = S_VELOCITY_X
+    return state[v] * dt_s, state[v + 1] * dt_s, state[v + 2] * dt_s
+
+
+@njit(cache=True, error_model="numpy")
+def _match(
+    pts: FloatArray,
+    kf: FloatArray,
+    guess: tuple[float, float, float],
+    params: FloatArray,
+    out: FloatArray,
+) -> None:
+    """:func:`~mkflight.scanmatch.icp.match`: the MatchResult's fields into ``out``."""
+    if not (math.isfinite(guess[0]) and math.isfinite(guess[1]) and math.isfinite(guess[2])):
+        guess = (0.0, 0.0, 0.0)
+    n = pts.shape[0]
+    out[T_MATCH_X], out[T_MATCH_X + 1], out[T_MATCH_X + 2] = guess
+    out[T_VALID] = out[T_DEGENERATE] = out[T_MATCHED_FRACTION] = 0.0
+    out[T_ITERATIONS] = out[T_CONVERGED] = out[T_MIN_INFORMATION] = 0.0
+    out[T_RMS] = math.nan
+    out[T_N_POINTS] = n
+    if n < params[P_MIN_MATCHES] or kf.shape[1] < 3:
+        return
+    res = icp_solve(pts, kf, np.array(guess), params)
+    if res[R_FAILED] != 0.0:
+        return
+    frac = res[R_INLIERS] / n
+    rms = res[R_RMS]
+    valid = (
+        math.isfinite(res[R_X])
+        and math.isfinite(res[R_Y])
+        and math.isfinite(res[R_TH])
+        and res[R_INLIERS] >= params[P_MIN_MATCHES]
+        and frac >= params[P_MIN_MATCHED_FRACTION]
+        and math.isfinite(rms)
+        and rms <= params[P_MAX_RMS_M]
+    )
+    if valid:
+        out[T_MATCH_X], out[T_MATCH_X + 1], out[T_MATCH_X + 2] = res[R_X], res[R_Y], res[R_TH]
+        out[T_VALID] = 1.0
+        out[T_DEGENERATE] = 1.0 if res[R_MIN_INFORMATION] < params[P_DEGENERACY_THRESHOLD] else 0.0
+    out[T_RMS], out[T_MATCHED_FRACTION] = rms, frac
+    out[T_ITERATIONS], out[T_CONVERGED] = res[R_ITERATIONS], res[R_CONVERGED]
+    out[T_MIN_INFORMATION] = res[R_MIN_INFORMATION]
+
+
+@njit(cache=True, error_model="numpy")
+def _new_keyframe(
+    pts: FloatArray, half_windows: IntArray, params: FloatArray, out: FloatArray
+) -> FloatArray:
+    """The keyframe policy: the scan's line rows when it becomes the keyframe, else (7, 0).
+
+    A new keyframe after ``keyframe_distance_m`` (x the degenerate factor in a degenerate
+    scene) or ``keyframe_angle_rad`` from the current one, or after a failed match; only
+    when at least 3 lines fit (``geometry.build_reference``'s rule).
+    """
+    rx, ry, rth = out[T_MATCH_X], out[T_MATCH_X + 1], out[T_MATCH_X + 2]
+    factor = params[P_DEGENERATE_DISTANCE_FACTOR] if out[T_DEGENERATE] == 1.0 else 1.0
+    limit_m = params[P_KEYFRAME_DISTANCE_M] * factor
+    far = math.hypot(rx, ry) > limit_m or abs(rth) > params[P_KEYFRAME_ANGLE_RAD]
+    if (far or out[T_VALID] != 1.0) and pts.shape[0] >= 5:
+        rows = reference_rows(
+            pts, half_windows, params[P_MIN_CHORD_M], params[P_MAX_GAP_M], params[P_MAX_LINE_RMS_M]
+        )
+        if rows.shape[1] >= 3:
+            return rows
+    return np.empty((7, 0))
+
+
+@njit(cache=True, error_model="numpy")
+def track_step(
+    pts: FloatArray,
+    kf: FloatArray,
+    state: FloatArray,
+    params: FloatArray,
+    half_windows: IntArray,
+    out: FloatArray,
+    prior: tuple[float, float, float],
+    dt_s: float,
+) -> FloatArray:
+    """One scan of :meth:`~mkflight.scanmatch.keyframe.KeyframeMatcher.update`, compiled.
+
+    The prediction (``prior`` when finite, NaN: none; else constant velocity over ``dt_s``,
+    NaN: unknown), the match against the keyframe's rows ``kf``, the world pose, the
+    keyframe policy (the new keyframe's line rows are returned; (7, 0): no new keyframe)
+    and the state update (``state``, ``S_*`` indices, in place), with the same operations
+    as the Python path so that the poses are the same to the bit. ``out`` (``T_*``) gets
+    the pose and the match's fields; ``out[T_HANDLED]`` is 0 (nothing changed) when a
+    point is not finite: the Python path handles such scans.
+    """
+    out[T_HANDLED] = 0.0
+    if not _plain(pts):
+        return np.empty((7, 0))
+    inc = _increment(state, params, prior, dt_s)
+    px, py, pth = state[S_X], state[S_X + 1], state[S_X + 2]
+    kx, ky, kth = state[S_KF_X], state[S_KF_X + 1], state[S_KF_X + 2]
+    predicted = _compose(px, py, pth, inc[0], inc[1], inc[2])
+    guess = _between(kx, ky, kth, predicted[0], predicted[1], predicted[2])
+    _match(pts, kf, guess, params, out)
+    pose = predicted
+    if out[T_VALID] == 1.0:
+        pose = _compose(kx, ky, kth, out[T_MATCH_X], out[T_MATCH_X + 1], out[T_MATCH_X + 2])
+    rows = _new_keyframe(pts, half_windows, params, out)
+    out[T_NEW_KEYFRAME] = 1.0 if rows.shape[1] > 0 else 0.0
+    if rows.shape[1] > 0:
+        state[S_KF_X], state[S_KF_X + 1], state[S_KF_X + 2] = pose
+    step = _between(px, py, pth, pose[0], pose[1], pose[2])
+    state[S_INCREMENT_X], state[S_INCREMENT_X + 1], state[S_INCREMENT_X + 2] = step
+    if 0.0 < dt_s <= params[P_MAX_PREDICTION_DT_S]:
+        v = S_VELOCITY_X
+        state[v], state[v + 1], state[v + 2] = step[0] / dt_s, step[1] / dt_s, step[2] / dt_s
+        state[S_HAS_VELOCITY] = 1.0
+    else:
+        state[S_HAS_VELOCITY] = 0.0
+    state[S_X], state[S_X + 1], state[S_X + 2] = pose
+    out[T_X], out[T_X + 1], out[T_X + 2] = pose
+    out[T_HANDLED] = 1.0
+    return rows
+
+
+@njit(cache=True, error_model="numpy")
+def beam_points(ranges_m: FloatArray, mask: BoolArray, directions: FloatArray) -> FloatArray:
+    """The (M, 2) points ``r * (cos, sin)`` of the beams in ``mask``, in beam order.
+
+    ``directions``: (N, 2) each beam's cosine and sine (computed once per beam layout by
+    the caller); the products are those of :func:`~mkflight.scanmatch.geometry.scan_to_points`.
+    """
+    m = 0
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            m += 1
+    out = np.empty((m, 2))
+    k = 0
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            out[k, 0] = ranges_m[i] * directions[i, 0]
+            out[k, 1] = ranges_m[i] * directions[i, 1]
+            k += 1
     return out

@@ -29,6 +29,7 @@ import numpy.typing as npt
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
 
 #: Neighbours (in the reference's bearing order) tried each side of a point's bisection
 #: index: ``j - SEARCH_HALF_WIDTH .. j + SEARCH_HALF_WIDTH``.
@@ -84,6 +85,45 @@ R_MIN_INFORMATION: Final = 6
 R_INLIERS: Final = 7
 R_FAILED: Final = 8
 N_RESULTS: Final = 9
+
+# The compiled kernel's ``track_step`` (one call per scan: the keyframe matcher's step,
+# :meth:`~mkflight.scanmatch.keyframe.KeyframeMatcher.update`) reads the keyframe policy and
+# the line-fit tuning from the same ``params`` array, after the ICP tuning.
+P_MIN_MATCHED_FRACTION: Final = 15
+P_MAX_RMS_M: Final = 16
+P_KEYFRAME_DISTANCE_M: Final = 17
+P_KEYFRAME_ANGLE_RAD: Final = 18
+P_DEGENERATE_DISTANCE_FACTOR: Final = 19
+P_MAX_PREDICTION_DT_S: Final = 20
+P_MIN_CHORD_M: Final = 21
+P_MAX_GAP_M: Final = 22
+P_MAX_LINE_RMS_M: Final = 23
+N_TRACK_PARAMS: Final = 24
+
+# Indices into the tracker's state array (updated in place by ``track_step``): the pose,
+# the keyframe's pose, the last increment and the velocity (per second; valid when
+# S_HAS_VELOCITY is 1).
+S_X: Final = 0
+S_KF_X: Final = 3
+S_INCREMENT_X: Final = 6
+S_VELOCITY_X: Final = 9
+S_HAS_VELOCITY: Final = 12
+N_STATE: Final = 13
+
+# Indices into ``track_step``'s output array: the world pose, then the MatchResult's fields.
+T_X: Final = 0
+T_MATCH_X: Final = 3
+T_VALID: Final = 6
+T_DEGENERATE: Final = 7
+T_RMS: Final = 8
+T_MATCHED_FRACTION: Final = 9
+T_ITERATIONS: Final = 10
+T_CONVERGED: Final = 11
+T_MIN_INFORMATION: Final = 12
+T_N_POINTS: Final = 13
+T_NEW_KEYFRAME: Final = 14
+T_HANDLED: Final = 15
+N_TRACK_OUT: Final = 16
 
 
 def wrap_angle(angle_rad: float) -> float:

@@ -18,26 +18,61 @@ import structlog
 
 from mkflight.errors import ConfigError
 from mkflight.scanmatch import kernel_numpy
-from mkflight.scanmatch.kernel_numpy import CONSTANT_PARAMS, N_PARAMS, FloatArray, IntArray
+from mkflight.scanmatch.kernel_numpy import (
+    CONSTANT_PARAMS,
+    N_PARAMS,
+    N_STATE,
+    N_TRACK_OUT,
+    N_TRACK_PARAMS,
+    BoolArray,
+    FloatArray,
+    IntArray,
+)
 
 KernelName = Literal["auto", "numba", "numpy"]
+#: ``kernel_numba.track_step``'s signature: points, keyframe rows, state, params, line
+#: half-widths, output, prior pose, dt -> the new keyframe's rows.
+TrackStep = Callable[
+    [
+        FloatArray,
+        FloatArray,
+        FloatArray,
+        FloatArray,
+        IntArray,
+        FloatArray,
+        tuple[float, float, float],
+        float,
+    ],
+    FloatArray,
+]
 log = structlog.get_logger("mkflight.scanmatch")
 
 
 @dataclass(frozen=True, slots=True)
 class Kernel:
-    """One implementation: its name and its two functions (as in :mod:`kernel_numpy`)."""
+    """One implementation: its name and its functions (as in :mod:`kernel_numpy`).
+
+    ``track_step``: a whole scan of the keyframe matcher in one call; ``beam_points``: a
+    log's beams to points in one call (compiled kernel only; None: the callers take their
+    Python paths, with the same results).
+    """
 
     name: Literal["numba", "numpy"]
     reference_rows: Callable[[FloatArray, IntArray, float, float, float], FloatArray]
     icp_solve: Callable[[FloatArray, FloatArray, FloatArray, FloatArray], FloatArray]
+    track_step: TrackStep | None = None
+    beam_points: Callable[[FloatArray, BoolArray, FloatArray], FloatArray] | None = None
 
 
 NUMPY = Kernel("numpy", kernel_numpy.reference_rows, kernel_numpy.icp_solve)
 
 
 def warm_up(kernel: Kernel) -> None:
-    """Run both functions once on a small square room, so that none compiles in flight."""
+    """Run each function the flight calls once on a small square room (none compiles in flight).
+
+    Nor does any load from numba's cache in flight. ``beam_points`` is for logs only: it
+    loads at its first call (``mkflight scanmatch``), not at every start of the daemon.
+    """
     t = np.linspace(-1.0, 1.0, 40)
     x = np.concatenate((np.full(40, 2.0), t * 2.0))
     y = np.concatenate((t * 2.0, np.full(40, 2.0)))
@@ -48,6 +83,14 @@ def warm_up(kernel: Kernel) -> None:
     )
     assert params.shape == (N_PARAMS,)
     kernel.icp_solve(pts, ref, np.array([0.01, 0.0, 0.0]), params)
+    if kernel.track_step is not None:
+        # ICP tuning, then the keyframe policy (kernel_numpy.P_MIN_MATCHED_FRACTION on)
+        policy = [0.1, 0.05, 0.1, 0.1745, 3.0, 1.0, 0.1, 0.5, 0.03]
+        track = np.array([*params, *policy], dtype=np.float64)
+        assert track.shape == (N_TRACK_PARAMS,)
+        state, out = np.zeros(N_STATE), np.zeros(N_TRACK_OUT)
+        windows = np.array([1, 2, 4], dtype=np.int64)
+        kernel.track_step(pts, ref, state, track, windows, out, (0.01, 0.0, 0.0), 0.1)
 
 
 @functools.cache
@@ -56,7 +99,13 @@ def _compiled() -> Kernel | None:
     try:
         from mkflight.scanmatch import kernel_numba
 
-        kernel = Kernel("numba", kernel_numba.reference_rows, kernel_numba.icp_solve)
+        kernel = Kernel(
+            "numba",
+            kernel_numba.reference_rows,
+            kernel_numba.icp_solve,
+            kernel_numba.track_step,
+            kernel_numba.beam_points,
+        )
         warm_up(kernel)
     except Exception as err:  # not installed, no cache directory, a compiler error
         log.warning("scan matcher: numba unusable, the numpy kernel runs", error=repr(err))

@@ -19,6 +19,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
 
 from mkflight.config import ScanmatchConfig
 from mkflight.scanmatch.geometry import (
@@ -35,12 +38,35 @@ from mkflight.scanmatch.geometry import (
     compose,
     is_finite_pose,
 )
-from mkflight.scanmatch.icp import MatchResult, invalid_result, match
+from mkflight.scanmatch.icp import MatchResult, invalid_result, match, track_params
+from mkflight.scanmatch.kernel_numpy import (
+    N_STATE,
+    N_TRACK_OUT,
+    S_HAS_VELOCITY,
+    S_INCREMENT_X,
+    S_KF_X,
+    S_VELOCITY_X,
+    S_X,
+    T_CONVERGED,
+    T_DEGENERATE,
+    T_HANDLED,
+    T_ITERATIONS,
+    T_MATCH_X,
+    T_MATCHED_FRACTION,
+    T_MIN_INFORMATION,
+    T_N_POINTS,
+    T_NEW_KEYFRAME,
+    T_RMS,
+    T_VALID,
+    T_X,
+)
+from mkflight.scanmatch.kernels import load_kernel
 
 #: Keyframe distance multiplier while the match is degenerate (see :meth:`update`).
 DEGENERATE_DISTANCE_FACTOR = 3.0
 #: Longest gap between scans over which the constant-velocity prediction is extrapolated.
 MAX_PREDICTION_DT_S = 1.0
+_NAN_POSE: Final = (math.nan, math.nan, math.nan)
 
 
 @dataclass(frozen=True, slots=True)
@@ -61,6 +87,12 @@ class TrackUpdate:
 
 class KeyframeMatcher:
     """Track a sensor's pose over a sequence of scans by PL-ICP against keyframes.
+
+    With the compiled kernel a scan is one kernel call (``track_step``: prediction,
+    match, keyframe policy, line fits of a new keyframe, state update) and the Python
+    around it only packs the result; scans it does not take (non-finite points, thinning
+    by ``max_points``, the first scan) and the numpy kernel go through the same steps in
+    Python (:meth:`_update_python`), with the same poses.
 
     Args:
         config: the ``scanmatch`` config section: the ICP tuning and the keyframe policy
@@ -84,41 +116,39 @@ class KeyframeMatcher:
         half_windows: tuple[int, ...] = LINE_HALF_WINDOWS,
     ) -> None:
         self.config = config if config is not None else ScanmatchConfig()
-        self.keyframe_distance_m = self.config.keyframe_distance_m
-        self.keyframe_angle_rad = self.config.keyframe_angle_rad
         self._line_args = (min_line_length_m, max_gap_m, max_line_rms_m)
         self._half_windows = half_windows
-        self._pose: Pose = start_pose if is_finite_pose(start_pose) else IDENTITY
-        self._velocity: Pose | None = None  # last increment divided by its dt (per second)
-        self._last_increment: Pose = IDENTITY
+        self._windows = np.asarray(half_windows, dtype=np.int64)
+        self._params = track_params(
+            self.config,
+            (DEGENERATE_DISTANCE_FACTOR, MAX_PREDICTION_DT_S, *self._line_args),
+        )
+        self._state = np.zeros(N_STATE)
+        self._state[S_X : S_X + 3] = start_pose if is_finite_pose(start_pose) else IDENTITY
+        self._state[S_KF_X : S_KF_X + 3] = self._state[S_X : S_X + 3]
+        self._out = np.zeros(N_TRACK_OUT)
         self._kf: ReferenceScan | None = None
-        self._kf_pose: Pose = self._pose
         self._started = False
+        # Thinning is the Python path's (the compiled step matches every point).
+        self._compiled = (
+            load_kernel(self.config.kernel).track_step if self.config.max_points <= 0 else None
+        )
+
+    @property
+    def keyframe_distance_m(self) -> float:
+        """Distance from the keyframe beyond which a scan becomes the new keyframe."""
+        return self.config.keyframe_distance_m
+
+    @property
+    def keyframe_angle_rad(self) -> float:
+        """Turn from the keyframe beyond which a scan becomes the new keyframe."""
+        return self.config.keyframe_angle_rad
 
     @property
     def pose(self) -> Pose:
         """The latest world pose estimate."""
-        return self._pose
-
-    def _reference(self, points_xy: FloatArray) -> ReferenceScan | None:
-        length, gap, rms = self._line_args
-        return build_reference(
-            points_xy,
-            min_line_length_m=length,
-            max_gap_m=gap,
-            max_line_rms_m=rms,
-            half_windows=self._half_windows,
-            kernel=self.config.kernel,
-        )
-
-    def _predict(self, dt_s: float | None) -> Pose:
-        """Constant-velocity increment over ``dt_s`` (the last increment when dt unknown)."""
-        if dt_s is None:
-            return self._last_increment
-        if self._velocity is None or not (0.0 < dt_s <= MAX_PREDICTION_DT_S):
-            return IDENTITY
-        vx, vy, vth = self._velocity
-        return (vx * dt_s, vy * dt_s, vth * dt_s)
+        x, y, th = self._state[S_X : S_X + 3].tolist()
+        return (x, y, th)
 
     def update(
         self,
@@ -139,28 +169,85 @@ class KeyframeMatcher:
         Returns:
             The world pose and the match result; never raises on bad scans.
         """
+        kf = self._kf
+        step = self._compiled
+        if (
+            step is not None
+            and kf is not None
+            and type(points_xy) is np.ndarray
+            and points_xy.dtype == np.float64
+            and points_xy.shape[1:] == (2,)
+            and points_xy.flags.c_contiguous
+            and points_xy.flags.writeable  # (numba types a read-only array apart: a compile)
+        ):
+            prior = _NAN_POSE if motion_prior is None else _floats(motion_prior)
+            # NaN: no dt (evenly spaced scans); a NaN dt given is out of range (-1).
+            dt = math.nan if dt_s is None else float(dt_s) if dt_s == dt_s else -1.0
+            rows = step(
+                points_xy, kf.rows, self._state, self._params, self._windows, self._out, prior, dt
+            )
+            if self._out[T_HANDLED] == 1.0:
+                return self._packed(rows)
+        return self._update_python(points_xy, motion_prior, dt_s)
+
+    def _packed(self, rows: FloatArray) -> TrackUpdate:
+        """The :class:`TrackUpdate` of a compiled step from its output array."""
+        o = self._out.tolist()
+        result = MatchResult(
+            pose=(o[T_MATCH_X], o[T_MATCH_X + 1], o[T_MATCH_X + 2]),
+            valid=o[T_VALID] == 1.0,
+            degenerate=o[T_DEGENERATE] == 1.0,
+            rms_m=o[T_RMS],
+            matched_fraction=o[T_MATCHED_FRACTION],
+            iterations=int(o[T_ITERATIONS]),
+            converged=o[T_CONVERGED] == 1.0,
+            min_information=o[T_MIN_INFORMATION],
+            n_points=int(o[T_N_POINTS]),
+        )
+        new_kf = o[T_NEW_KEYFRAME] == 1.0
+        if new_kf:
+            self._kf = ReferenceScan(rows=rows, n_points=result.n_points)
+        return TrackUpdate((o[T_X], o[T_X + 1], o[T_X + 2]), result, new_keyframe=new_kf)
+
+    def _reference(self, points_xy: FloatArray) -> ReferenceScan | None:
+        length, gap, rms = self._line_args
+        return build_reference(
+            points_xy,
+            min_line_length_m=length,
+            max_gap_m=gap,
+            max_line_rms_m=rms,
+            half_windows=self._half_windows,
+            kernel=self.config.kernel,
+        )
+
+    def _predict(self, dt_s: float | None) -> Pose:
+        """Constant-velocity increment over ``dt_s`` (the last increment when dt unknown)."""
+        s = self._state
+        if dt_s is None:
+            return _pose_at(s, S_INCREMENT_X)
+        if s[S_HAS_VELOCITY] == 0.0 or not (0.0 < dt_s <= MAX_PREDICTION_DT_S):
+            return IDENTITY
+        vx, vy, vth = _pose_at(s, S_VELOCITY_X)
+        return (vx * dt_s, vy * dt_s, vth * dt_s)
+
+    def _update_python(
+        self, points_xy: FloatArray, motion_prior: Pose | None, dt_s: float | None
+    ) -> TrackUpdate:
+        """:meth:`update` step by step in Python (the numpy kernel's path, and the fallback)."""
         if motion_prior is not None and is_finite_pose(motion_prior):
             increment = motion_prior
         else:
             increment = self._predict(dt_s)
-        previous = self._pose
+        previous = _pose_at(self._state, S_X)
         predicted = compose(previous, increment)
 
         if not self._started or self._kf is None:
-            ref = self._reference(points_xy)
-            if ref is None:
-                self._pose = predicted if self._started else previous
-                return TrackUpdate(self._pose, invalid_result(IDENTITY), new_keyframe=False)
-            pose = predicted if self._started else previous
-            self._started = True
-            self._kf, self._kf_pose, self._pose = ref, pose, pose
-            n = ref.n_points
-            first = MatchResult(pose=IDENTITY, valid=True, matched_fraction=1.0, n_points=n)
-            return TrackUpdate(pose, first, new_keyframe=True)
+            return self._first(points_xy, previous, predicted)
 
-        guess = between(self._kf_pose, predicted)
+        kf_pose = _pose_at(self._state, S_KF_X)
+        guess = between(kf_pose, predicted)
         result = match(self._kf, points_xy, guess, self.config)
-        pose = compose(self._kf_pose, result.pose) if result.valid else predicted
+        pose = compose(kf_pose, result.pose) if result.valid else predicted
         rel = result.pose
         # In a degenerate scene the motion along the unobservable axis is the prior's:
         # a new keyframe cannot improve it, and every switch adds a registration error,
@@ -173,12 +260,42 @@ class KeyframeMatcher:
         if far or not result.valid:
             ref = self._reference(points_xy)
             if ref is not None:
-                self._kf, self._kf_pose, new_kf = ref, pose, True
+                self._kf, new_kf = ref, True
+                self._state[S_KF_X : S_KF_X + 3] = pose
         step = between(previous, pose)
-        self._last_increment = step
+        self._state[S_INCREMENT_X : S_INCREMENT_X + 3] = step
         if dt_s is not None and 0.0 < dt_s <= MAX_PREDICTION_DT_S:
-            self._velocity = (step[0] / dt_s, step[1] / dt_s, step[2] / dt_s)
+            self._state[S_VELOCITY_X : S_VELOCITY_X + 3] = (
+                step[0] / dt_s,
+                step[1] / dt_s,
+                step[2] / dt_s,
+            )
+            self._state[S_HAS_VELOCITY] = 1.0
         else:
-            self._velocity = None
-        self._pose = pose
+            self._state[S_HAS_VELOCITY] = 0.0
+        self._state[S_X : S_X + 3] = pose
         return TrackUpdate(pose, result, new_keyframe=new_kf)
+
+    def _first(self, points_xy: FloatArray, previous: Pose, predicted: Pose) -> TrackUpdate:
+        """The first scan with lines: the first keyframe (before it, the prediction)."""
+        ref = self._reference(points_xy)
+        pose = predicted if self._started else previous
+        self._state[S_X : S_X + 3] = pose
+        if ref is None:
+            return TrackUpdate(pose, invalid_result(IDENTITY), new_keyframe=False)
+        self._started = True
+        self._kf = ref
+        self._state[S_KF_X : S_KF_X + 3] = pose
+        first = MatchResult(pose=IDENTITY, valid=True, matched_fraction=1.0, n_points=ref.n_points)
+        return TrackUpdate(pose, first, new_keyframe=True)
+
+
+def _pose_at(state: FloatArray, i: int) -> Pose:
+    """The pose at ``state[i : i + 3]``, as floats."""
+    x, y, th = state[i : i + 3].tolist()
+    return (x, y, th)
+
+
+def _floats(p: Pose) -> Pose:
+    """A pose as three Python floats (the compiled step takes one tuple type only)."""
+    return (float(p[0]), float(p[1]), float(p[2]))

@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Final
 
 import numpy as np
@@ -49,6 +49,8 @@ from mkflight.flight.laser_pipeline import level_points, pose_from_math, pose_to
 from mkflight.scanmatch.carmen import LaserRecord
 from mkflight.scanmatch.geometry import Pose, between, compose, inverse, scan_to_points
 from mkflight.scanmatch.icp import MatchResult
+from mkflight.scanmatch.kernel_numpy import BoolArray, FloatArray
+from mkflight.scanmatch.kernels import load_kernel
 from mkflight.scanmatch.keyframe import KeyframeMatcher
 from mkflight.urg.hat import HatSettings, hat_height
 
@@ -203,15 +205,109 @@ def _lookup(ts: npt.NDArray[np.float64], t: float) -> int:
     """Index of the sample nearest to ``t`` within :data:`ODOM_TOLERANCE_S`, else -1."""
     if ts.shape[0] == 0:
         return -1
-    i = int(np.searchsorted(ts, t))
+    return _nearest_sample(ts.tolist(), int(np.searchsorted(ts, t)), t)
+
+
+def _nearest_sample(ts: list[float], i: int, t: float) -> int:
+    """:func:`_lookup` given ``i``, the sorted position of ``t`` in ``ts`` (ties: the later)."""
     best = -1
     best_d = ODOM_TOLERANCE_S
     for j in (i - 1, i):
-        if 0 <= j < ts.shape[0]:
-            d = abs(float(ts[j]) - t)
+        if 0 <= j < len(ts):
+            d = abs(ts[j] - t)
             if d <= best_d:
                 best, best_d = j, d
     return best
+
+
+class _OdomPriors:
+    """The odometry increment between consecutive scans as the motion prior (module doc).
+
+    The odometry as Python floats and every scan's sorted position in its timestamps are
+    taken once (one ``searchsorted`` for all scans); per scan there remain the nearest
+    sample and three compositions.
+    """
+
+    def __init__(
+        self,
+        odom: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]],
+        times_s: list[float],
+        mount: Pose,
+    ) -> None:
+        self._ts: list[float] = odom[0].tolist()
+        self._poses: list[Pose] = [(p[0], p[1], p[2]) for p in odom[1].tolist()]
+        self._positions: list[int] = np.searchsorted(odom[0], times_s).tolist()
+        self._mount, self._mount_inv = mount, inverse(mount)
+        self._prev = -1
+
+    def prior(self, i: int, t_s: float) -> Pose | None:
+        """Scan ``i``'s prior (the scans are asked for in order); None: no sample."""
+        cur = _nearest_sample(self._ts, self._positions[i], t_s)
+        prev, self._prev = self._prev, cur
+        if prev < 0 or cur < 0:
+            return None
+        inc_robot = between(self._poses[prev], self._poses[cur])
+        return compose(compose(self._mount_inv, inc_robot), self._mount)
+
+
+class _BeamPoints:
+    """Each record's points to match: :func:`beam_mask`'s beams by :func:`scan_to_points`.
+
+    The same points to the bit, cheaper: the beams' directions (cos, sin) and the step
+    mask are computed once per beam layout (a log has one), so a scan costs one call of
+    the compiled kernel's ``beam_points`` (or four numpy calls without it) instead of
+    some twenty numpy calls. ``valid`` is finite and in range (:class:`LaserRecord`).
+    """
+
+    def __init__(
+        self,
+        scan_steps: tuple[int, int],
+        compiled: Callable[[FloatArray, BoolArray, FloatArray], FloatArray] | None = None,
+    ) -> None:
+        self._scan_steps = scan_steps
+        self._compiled = compiled
+        self._angles: npt.NDArray[np.float64] | None = None
+        self._key: tuple[bool, bytes] = (False, b"")
+        self._keep: npt.NDArray[np.bool_] | None = None
+        self._directions: npt.NDArray[np.float64] = np.empty((0, 2))
+
+    def __call__(self, rec: LaserRecord) -> npt.NDArray[np.float64]:
+        if rec.angles_rad is not self._angles:
+            self._layout(rec)
+        n = self._directions.shape[0]
+        if rec.valid.shape != (n,) or rec.ranges_m.shape != (n,):
+            mask = beam_mask(rec, self._scan_steps)
+            return scan_to_points(rec.ranges_m[mask], rec.angles_rad[mask], -math.inf, math.inf)
+        mask = rec.valid if self._keep is None else rec.valid & self._keep
+        compiled, ranges = self._compiled, rec.ranges_m
+        if (
+            compiled is not None
+            and ranges.dtype == np.float64
+            and ranges.flags.c_contiguous
+            and mask.dtype == np.bool_
+            and mask.flags.c_contiguous
+            and ranges.flags.writeable  # (numba types read-only arrays apart: a compile)
+            and mask.flags.writeable
+        ):
+            return compiled(ranges, mask, self._directions)
+        ranges = np.asarray(ranges[mask], dtype=np.float64)
+        out: npt.NDArray[np.float64] = ranges[:, None] * self._directions[mask]
+        return out
+
+    def _layout(self, rec: LaserRecord) -> None:
+        """The directions and the step mask of ``rec``'s layout (kept when unchanged)."""
+        self._angles = rec.angles_rad
+        key = (rec.kind in _URG_KINDS, rec.angles_rad.tobytes())
+        if key == self._key:
+            return
+        self._key = key
+        a = np.asarray(rec.angles_rad, dtype=np.float64).ravel()
+        keep = np.isfinite(a) & beam_mask(
+            replace(rec, valid=np.ones(a.shape[0], dtype=np.bool_)), self._scan_steps
+        )
+        self._keep = None if bool(keep.all()) else keep
+        with np.errstate(invalid="ignore"):
+            self._directions = np.stack((np.cos(a), np.sin(a)), axis=1)
 
 
 def track_records(
@@ -252,30 +348,21 @@ def track_records(
         start_pose=first.laser_pose,
         min_line_length_m=URG_MIN_LINE_LENGTH_M if urg else SPARSE_MIN_LINE_LENGTH_M,
     )
+    kernel = load_kernel((config if config is not None else ScanmatchConfig()).kernel)
+    beam_points = _BeamPoints(scan_steps, kernel.beam_points)
+    priors = None if odom is None else _OdomPriors(odom, [r.t_s for r in records], mount)
     out: list[TrackedScan] = []
     prev_t: float | None = None
-    prev_odom = -1
     for i, rec in enumerate(records):
         t0 = time.perf_counter()
-        if points is not None:
-            pts = points[i]
-        else:
-            mask = beam_mask(rec, scan_steps)
-            pts = scan_to_points(rec.ranges_m[mask], rec.angles_rad[mask], -math.inf, math.inf)
-        prior: Pose | None = None
-        cur_odom = -1
-        if odom is not None:
-            cur_odom = _lookup(odom[0], rec.t_s)
-            if prev_odom >= 0 and cur_odom >= 0:
-                a, b = odom[1][prev_odom], odom[1][cur_odom]
-                inc_robot = between((a[0], a[1], a[2]), (b[0], b[1], b[2]))
-                prior = compose(compose(mount_inv, inc_robot), mount)
+        pts = points[i] if points is not None else beam_points(rec)
+        prior = None if priors is None else priors.prior(i, rec.t_s)
         dt = None if prev_t is None else rec.t_s - prev_t
         update = matcher.update(pts, motion_prior=prior, dt_s=dt)
         pose = compose(update.pose, mount_inv) if rec.kind == "ROBOTLASER1" else update.pose
         elapsed = time.perf_counter() - t0
         out.append(TrackedScan(rec.t_s, pose, update.result, elapsed, prior is not None))
-        prev_t, prev_odom = rec.t_s, cur_odom
+        prev_t = rec.t_s
         if on_scan is not None:
             on_scan()
     return out

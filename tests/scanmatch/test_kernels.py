@@ -8,8 +8,9 @@ import sys
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
+from numba import njit
 from scipy.spatial import cKDTree
 
 from mkflight.config import ScanmatchConfig
@@ -143,3 +144,49 @@ def test_the_flight_path_does_not_import_scipys_kd_tree() -> None:
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert proc.stdout.strip() == "[]"
+
+
+@njit(cache=False)
+def compiled_hypot(dx: float, dy: float) -> float:
+    return math.hypot(dx, dy)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    dx=st.floats(-1e3, 1e3, allow_nan=False),
+    dy=st.floats(-1e3, 1e3, allow_nan=False),
+    nudge=st.sampled_from([-2, -1, 0, 1, 2, None]),
+    or_equal=st.booleans(),
+)
+@example(dx=1e-36, dy=1e-36, nudge=-2, or_equal=False)  # Python's hypot differs here
+def test_length_tests_answer_as_hypot_does(
+    dx: float, dy: float, nudge: int | None, or_equal: bool
+) -> None:
+    """The squared-length shortcut gives the compiled hypot's answer, also a few ulps from
+    the tie (the compiled hypot is libm's; Python's own may differ from it by an ulp)."""
+    exact = compiled_hypot(dx, dy)
+    if nudge is None:
+        limits = [0.5, 0.12, 1e-120, 0.0, -1.0]
+    else:
+        limits = [exact]
+        for _ in range(abs(nudge)):
+            limits.append(math.nextafter(limits[-1], math.inf if nudge > 0 else -math.inf))
+    for limit in limits:
+        want = exact >= limit if or_equal else exact > limit
+        assert kernel_numba._hypot_above(dx, dy, limit, or_equal) == want
+
+
+@pytest.mark.parametrize("order", ["sweep", "reversed", "shuffled"])
+def test_reference_rows_sort_any_order_of_points(order: str) -> None:
+    """In sweep order the centres come sorted (the sort is skipped); otherwise it runs."""
+    pts = room_points(3, (0.1, 0.2, 0.3), FULL_TURN)
+    if order == "reversed":
+        pts = np.ascontiguousarray(pts[::-1])
+    elif order == "shuffled":  # blocks of the scan swapped: lines fit, bearings jump
+        pts = np.ascontiguousarray(np.concatenate((pts[400:], pts[:400])))
+    windows = np.asarray(LINE_HALF_WINDOWS, dtype=np.int64)
+    a = kernel_numpy.reference_rows(pts, windows, 0.12, 0.5, 0.03)
+    b = kernel_numba.reference_rows(pts, windows, 0.12, 0.5, 0.03)
+    assert a.shape == b.shape
+    assert a.shape[1] > 100
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
