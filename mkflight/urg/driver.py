@@ -37,7 +37,7 @@ from mkflight.config import LaserConfig
 from mkflight.conversions import NS_PER_S
 from mkflight.errors import LinkError, ProtocolError
 from mkflight.io.reopen import open_with_backoff
-from mkflight.io.stream import ByteStream, Opener, Tap, resolve_waiter
+from mkflight.io.stream import ByteStream, Opener, PushStream, Tap, resolve_waiter
 from mkflight.msgs import Scan
 from mkflight.urg.codec import md_command, scip2_command, simple_command, tm_command
 from mkflight.urg.driver_types import UrgInfo, UrgStats, streamed_steps
@@ -76,6 +76,8 @@ class UrgDriver:
         self.info: UrgInfo | None = None
         self._stamper = ScanStamper(self._cfg.transport_delay_s)
         self._reader: asyncio.Task[None] | None = None
+        self._pushed = False  # the stream hands chunks to _on_chunk (no reader task)
+        self._push: PushStream | None = _push_stream(stream)
         self._error: LinkError | None = None
         self._waiters: list[tuple[bytes, asyncio.Future[Reply]]] = []
         self._last_rx_ns = 0
@@ -91,7 +93,18 @@ class UrgDriver:
     # ----- lifecycle -------------------------------------------------------------------
 
     def start(self) -> None:
-        """Start the reader task (idempotent)."""
+        """Start reading (idempotent).
+
+        In the port's own callback if it offers one (:class:`PushStream`): a scan's
+        chunks are parsed as they arrive, with no reader task woken per chunk; else in a
+        reader task.
+        """
+        if self._closed or self._pushed:
+            return
+        if self._push is not None:
+            self._pushed = True
+            self._push.deliver_to(self._on_chunk, self._on_end)
+            return
         if self._reader is None or self._reader.done():
             self._reader = asyncio.get_running_loop().create_task(
                 self._read_loop(), name=f"urg-reader {self.port}"
@@ -173,6 +186,7 @@ class UrgDriver:
         if self._error is None:
             with contextlib.suppress(LinkError, ProtocolError, TimeoutError):
                 await self._request(simple_command("QT"), timeout_s=0.3)
+        self._stop_pushing()
         reader, self._reader = self._reader, None
         if reader is not None:
             reader.cancel()
@@ -191,6 +205,7 @@ class UrgDriver:
         if self._closed or self._opener is None:
             msg = f"{self.port}: cannot re-open (closed, or no opener)"
             raise LinkError(msg)
+        self._stop_pushing()
         if self._reader is not None:
             self._reader.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
@@ -205,6 +220,7 @@ class UrgDriver:
             backoff_max_s=self._cfg.reopen_backoff_max_s,
             log_event="urg_reopen_retry",
         )
+        self._push = _push_stream(self._stream)
         self._parser.reset()
         self._error = None
         self._latest = None
@@ -300,6 +316,31 @@ class UrgDriver:
             log.exception("urg_reader_crashed", port=self.port)
             self._fail(LinkError(f"{self.port}: laser reader crashed: {err!r}"))
 
+    def _on_chunk(self, data: bytes) -> None:
+        """A chunk the port handed over as it arrived: what _read_loop does with one."""
+        try:
+            t_ns = self._clock.now_ns()
+            self._last_rx_ns = t_ns
+            if self._tap is not None:
+                self._tap("r", t_ns, data)
+            for reply in self._parser.feed(data):
+                self._dispatch(reply, t_ns)
+        except Exception as err:  # a bug: as _read_loop's; consumers must not wait forever
+            self._stop_pushing()
+            log.exception("urg_reader_crashed", port=self.port)
+            self._fail(LinkError(f"{self.port}: laser reader crashed: {err!r}"))
+
+    def _on_end(self, err: LinkError) -> None:
+        """The port handed over its end (it vanished, or it was closed)."""
+        self._pushed = False
+        self._fail(err)
+
+    def _stop_pushing(self) -> None:
+        if self._pushed:
+            self._pushed = False
+            if self._push is not None:
+                self._push.deliver_to(None, None)
+
     def _dispatch(self, reply: Reply, t_ns: int) -> None:
         if isinstance(reply, ScanReply) and reply.status != "00":
             self._on_stream_message(reply, t_ns)
@@ -357,7 +398,7 @@ class UrgDriver:
     @property
     def closed(self) -> bool:
         """:meth:`close` has stopped the reader: nothing more is read from the port."""
-        return self._closed and self._reader is None
+        return self._closed and self._reader is None and not self._pushed
 
     async def next_scan(self, timeout_s: float | None = None) -> Scan:
         """The newest scan (older ones not picked up are dropped and counted).
@@ -401,3 +442,8 @@ class UrgDriver:
                 self._scan_waiter = None
         scan, self._latest = self._latest, None
         return scan
+
+
+def _push_stream(stream: ByteStream) -> PushStream | None:
+    """``stream`` if it hands chunks over as they arrive (asked once: a costly check)."""
+    return stream if isinstance(stream, PushStream) else None
