@@ -2,7 +2,9 @@
 
 * :func:`mk_task` - driven by DebugOut arrival (SPEC §2), not by a timer: one flight step
   per sample (:class:`~mkflight.flight.mk_step.MkStep`), until the phase machine
-  releases;
+  releases; the step runs in the port's callback that read the sample
+  (:meth:`~mkflight.mk.link.MkLink.serve`), not a loop turn later: the task only waits
+  for the end, a failure or the timeout;
 * :func:`laser_task` - streams scans to the scan matcher, which runs in its own process
   (:class:`~mkflight.flight.matcher_worker.MatcherWorker`) so that a 1-3 ms ICP never
   delays a command; each result goes into the
@@ -43,7 +45,7 @@ from mkflight.logs.schema import (
     StopDeadline,
 )
 from mkflight.mk.link import MkLink
-from mkflight.msgs import Scan
+from mkflight.msgs import ImuSample, Scan
 from mkflight.safety.failsafe import StopRequest
 from mkflight.urg.driver import UrgDriver
 
@@ -76,27 +78,28 @@ async def mk_task(
     await before_subscribe()
     link.set_blind_command(mk_step.blind_command)  # asked only when the data goes stale
     link.subscribe()  # a fresh subscription: pre-flight may have outlasted the last one
-    while True:
-        try:
-            sample = await link.next_sample(timeout_s)
-            if sample.t_ns < start_ns:
-                continue  # older than READY: the FC may have stopped streaming since
-            stop.check_deadline(clock.now_ns())
-            out = mk_step.step(sample)  # its command's write may find the port gone
-        except LinkError as err:
-            if link.error is not None:  # the port itself failed: try to hand back
-                with contextlib.suppress(Exception):  # nothing may keep us from handing back
-                    taps.mark("mk", "c", str(err))
-                with contextlib.suppress(LinkError, TimeoutError):
-                    async with asyncio.timeout(FC_REOPEN_S):
-                        await link.reopen(max_wait_s=FC_REOPEN_S)  # releases first
-            msg = f"FlightCtrl lost: {err}; it hands control to the pilot's sticks"
-            raise FlightError(msg) from err
-        if out.phase is Phase.RELEASED:
-            if mk_step.core.handed_in_air:  # the last resort: say so, exit 1
-                msg = "handed to the pilot in the air: the descent without height found no floor"
-                raise FlightError(msg)
-            return
+
+    def on_sample(sample: ImuSample) -> bool:
+        """One step (in the callback that read the DebugOut); True once RELEASED."""
+        if sample.t_ns < start_ns:
+            return False  # older than READY: the FC may have stopped streaming since
+        stop.check_deadline(clock.now_ns())
+        return mk_step.step(sample).phase is Phase.RELEASED  # its write may find the port gone
+
+    try:
+        await link.serve(on_sample, timeout_s)
+    except LinkError as err:
+        if link.error is not None:  # the port itself failed: try to hand back
+            with contextlib.suppress(Exception):  # nothing may keep us from handing back
+                taps.mark("mk", "c", str(err))
+            with contextlib.suppress(LinkError, TimeoutError):
+                async with asyncio.timeout(FC_REOPEN_S):
+                    await link.reopen(max_wait_s=FC_REOPEN_S)  # releases first
+        msg = f"FlightCtrl lost: {err}; it hands control to the pilot's sticks"
+        raise FlightError(msg) from err
+    if mk_step.core.handed_in_air:  # the last resort: say so, exit 1
+        msg = "handed to the pilot in the air: the descent without height found no floor"
+        raise FlightError(msg)
 
 
 async def laser_task(
