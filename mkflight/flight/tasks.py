@@ -5,10 +5,11 @@
   releases; the step runs in the port's callback that read the sample
   (:meth:`~mkflight.mk.link.MkLink.serve`), not a loop turn later: the task only waits
   for the end, a failure or the timeout;
-* :func:`laser_task` - streams scans to the scan matcher, which runs in its own process
-  (:class:`~mkflight.flight.matcher_worker.MatcherWorker`) so that a 1-3 ms ICP never
-  delays a command; each result goes into the
-  :class:`~mkflight.flight.laser_inbox.LaserInbox` for the next step;
+* :func:`laser_task` - streams scans to the scan matcher
+  (:class:`~mkflight.flight.matcher_worker.MatcherWorker`), inline in the port's callback
+  that read the scan, or in its own process so that a 1-3 ms ICP never delays a command;
+  each result goes into the :class:`~mkflight.flight.laser_inbox.LaserInbox` for the
+  next step;
 * :func:`watchdog_task` - a timer that only watches: ``--duration``, the stop deadline,
   the status line and systemd's STATUS; it wakes when one of them is due;
 * :func:`supervise` - runs them together: a crash of the laser or watchdog task lands
@@ -122,9 +123,18 @@ async def laser_task(
     skip a scan; ``on_scan`` is told of each scan as it comes (the observer's).
     """
     timeout_s = max(1.0, stale_s * 3)
+
+    def match_now(scan: Scan) -> None:
+        """One scan through the inline matcher, in the callback that read it."""
+        on_scan(scan)
+        if scan_wanted(scan.seq):
+            pitch, roll = attitude.at(scan.t_ns)
+            inbox.put_matched(worker.process_now(scan, pitch, roll), clock.now_ns())
+
     while True:
         try:
-            scan = await driver.next_scan(timeout_s)
+            # An inline matcher runs in the port's callback: no loop turn per scan.
+            scan = await driver.next_scan(timeout_s, match_now if worker.runs_now else None)
         except LinkError as err:
             if driver.error is None:  # no scan in time: the driver keeps restarting
                 logs.event(LaserSilent(t_ns=clock.now_ns(), error=str(err)))
@@ -135,6 +145,9 @@ async def laser_task(
             await driver.reopen(max_wait_s=LASER_REOPEN_S)
             logs.event(LaserReopened(t_ns=clock.now_ns()))
             continue
+        except MatcherError as err:
+            msg = f"scan matcher failed: {err}"
+            raise FlightError(msg) from err
         on_scan(scan)
         if not scan_wanted(scan.seq):
             continue

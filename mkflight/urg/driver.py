@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+from collections.abc import Callable
 
 import structlog
 
@@ -85,6 +86,11 @@ class UrgDriver:
         self._md: bytes | None = None
         self._latest: Scan | None = None
         self._scan_waiter: asyncio.Future[None] | None = None
+        self._scan_timer: asyncio.TimerHandle | None = None  # ends the wait (a stall)
+        self._inline: Callable[[Scan], None] | None = None  # next_scan's, while it waits
+        self._inline_error: Exception | None = None  # what it raised, for next_scan
+        self._wait_started = 0.0  # loop time the current wait's timeout counts from
+        self._inline_timeout_s: float | None = None
         self._last_scan_ns: int | None = None
         self._sum_errors_seen = 0
         self._restarts_in_a_row = 0
@@ -308,6 +314,7 @@ class UrgDriver:
                     self._tap("r", t_ns, data)
                 for reply in self._parser.feed(data):
                     self._dispatch(reply, t_ns)
+                self._deliver()
         except LinkError as err:
             self._fail(err)
         except asyncio.CancelledError:
@@ -325,6 +332,7 @@ class UrgDriver:
                 self._tap("r", t_ns, data)
             for reply in self._parser.feed(data):
                 self._dispatch(reply, t_ns)
+            self._deliver()
         except Exception as err:  # a bug: as _read_loop's; consumers must not wait forever
             self._stop_pushing()
             log.exception("urg_reader_crashed", port=self.port)
@@ -373,7 +381,47 @@ class UrgDriver:
         self._last_scan_ns = t_ns
         self._sum_errors_seen = self._parser.stats.sum_errors
         self._restarts_in_a_row = 0
-        self._wake()
+        if self._inline is None:
+            self._wake()  # else _deliver() hands it over once the chunk is parsed
+
+    def _deliver(self) -> None:
+        """A chunk is parsed: a new scan goes to :meth:`next_scan`'s ``inline`` now.
+
+        What the task would do with it a loop turn later, without that turn; then the
+        wait goes on as :meth:`next_scan`'s next call would begin it (its stall timer
+        from now). An error of ``inline`` is raised by :meth:`next_scan`.
+        """
+        if self._latest is None:
+            return
+        handler, waiter = self._inline, self._scan_waiter
+        if handler is None or waiter is None or waiter.done():
+            self._wake()
+            return
+        scan, self._latest = self._latest, None
+        self._inline = None
+        try:
+            handler(scan)
+        except Exception as err:  # the task raises it (a matcher failure lands)
+            self._inline_error = err
+            self._wake()
+            return
+        if waiter.done():
+            return  # woken meanwhile: the task goes on from there
+        last = self._last_scan_ns
+        stalled_s = 0.0 if last is None else (self._clock.now_ns() - last) / NS_PER_S
+        sum_run = self._parser.stats.sum_errors - self._sum_errors_seen
+        if last is None or stalled_s >= self._cfg.stall_s or sum_run >= self._cfg.sum_error_run:
+            self._wake()  # a restart is due: the task's loop does it
+            return
+        loop = asyncio.get_running_loop()
+        self._wait_started = loop.time()
+        wait_s = self._cfg.stall_s - stalled_s
+        if self._inline_timeout_s is not None:
+            wait_s = min(wait_s, self._inline_timeout_s)
+        if self._scan_timer is not None:
+            self._scan_timer.cancel()
+        self._scan_timer = loop.call_later(max(wait_s, 0.001), resolve_waiter, waiter)
+        self._inline = handler
 
     def _wake(self) -> None:
         waiter = self._scan_waiter
@@ -400,16 +448,23 @@ class UrgDriver:
         """:meth:`close` has stopped the reader: nothing more is read from the port."""
         return self._closed and self._reader is None and not self._pushed
 
-    async def next_scan(self, timeout_s: float | None = None) -> Scan:
+    async def next_scan(
+        self, timeout_s: float | None = None, inline: Callable[[Scan], None] | None = None
+    ) -> Scan:
         """The newest scan (older ones not picked up are dropped and counted).
 
-        Restarts a stalled, erroring or checksum-failing stream on the way.
+        Restarts a stalled, erroring or checksum-failing stream on the way. With
+        ``inline``, each scan that arrives while this waits goes to ``inline`` in the
+        callback that read it (no loop turn to wake the caller) and the wait goes on;
+        ``timeout_s`` then counts from the last scan.
 
         Raises:
             LinkError: the device failed or vanished, or no scan within ``timeout_s``.
+            Exception: whatever ``inline`` raised.
         """
         loop = asyncio.get_running_loop()
-        started = loop.time()
+        self._wait_started = loop.time()
+        self._inline_timeout_s = timeout_s
         while self._latest is None:
             if self._error is not None:
                 raise self._error
@@ -428,18 +483,25 @@ class UrgDriver:
                 continue
             wait_s = self._cfg.stall_s - stalled_s
             if timeout_s is not None:
-                left_s = timeout_s - (loop.time() - started)
+                left_s = timeout_s - (loop.time() - self._wait_started)
                 if left_s <= 0:
                     msg = f"no scan from the laser on {self.port} for {timeout_s:g} s"
                     raise LinkError(msg)
                 wait_s = min(wait_s, left_s)
             waiter = self._scan_waiter = loop.create_future()
-            timer = loop.call_later(max(wait_s, 0.001), resolve_waiter, waiter)
+            self._scan_timer = loop.call_later(max(wait_s, 0.001), resolve_waiter, waiter)
+            self._inline = inline
             try:
                 await waiter
             finally:
-                timer.cancel()
+                if self._scan_timer is not None:
+                    self._scan_timer.cancel()
+                self._scan_timer = None
                 self._scan_waiter = None
+                self._inline = None
+            err, self._inline_error = self._inline_error, None
+            if err is not None:
+                raise err
         scan, self._latest = self._latest, None
         return scan
 
