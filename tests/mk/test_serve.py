@@ -96,9 +96,14 @@ async def test_stale_data_still_releases_and_the_timeout_still_ends_the_serve() 
     try:
         link.send_extern_control(ExternControl(nick=30, gas=110, config=1))  # control taken
         steps: list[float] = []
+
+        def on_sample(sample: ImuSample) -> bool:
+            steps.append(loop.time())
+            return False
+
         stream = asyncio.create_task(_stream(fc, 20))
         with pytest.raises(LinkError, match="no DebugOut"):
-            await link.serve(lambda s: steps.append(loop.time()) is not None, timeout_s=0.8)
+            await link.serve(on_sample, timeout_s=0.8)
         await stream
         ended = loop.time()
     finally:
