@@ -172,28 +172,43 @@ async def watchdog_task(
     """``--duration``, the stop deadline, the status line: a timer that only watches.
 
     It wakes when something is due (:func:`watch_sleep_s`), not every 50 ms: the steps
-    check the stop deadline themselves, this is for when no step comes.
+    check the stop deadline themselves, this is for when no step comes. Its work runs in
+    the timer's own callback: a sleeping task would take a second loop turn per wake-up
+    (the sleep's timer, then the task). The task only waits for an error, raised here.
     """
-    next_status = 0.0
     loop = asyncio.get_running_loop()  # its time: the lock-step clock in a replay
-    sleep_s = WATCH_PERIOD_S
-    while True:
-        await asyncio.sleep(sleep_s)
-        now = clock.now_ns()
-        elapsed_s = (now - start_ns) / NS_PER_S
-        if duration_s is not None and elapsed_s >= duration_s and stop.request is None:
-            request_stop(StopRequest.DURATION, f"--duration {duration_s:g} s")
-        now = clock.now_ns()
-        stop.check_deadline(now)
-        if loop.time() >= next_status:
-            next_status = loop.time() + STATUS_PERIOD_S
-            show_status()
-        sleep_s = watch_sleep_s(
-            now,
-            status_in_s=next_status - loop.time(),
-            duration_end_ns=None if duration_s is None else start_ns + round(duration_s * NS_PER_S),
-            stop=stop,
-        )
+    ended: asyncio.Future[None] = loop.create_future()
+    next_status = 0.0
+    timer: asyncio.TimerHandle | None = None
+
+    def watch() -> None:
+        nonlocal next_status, timer
+        try:
+            now = clock.now_ns()
+            elapsed_s = (now - start_ns) / NS_PER_S
+            if duration_s is not None and elapsed_s >= duration_s and stop.request is None:
+                request_stop(StopRequest.DURATION, f"--duration {duration_s:g} s")
+            now = clock.now_ns()
+            stop.check_deadline(now)
+            if loop.time() >= next_status:
+                next_status = loop.time() + STATUS_PERIOD_S
+                show_status()
+            end_ns = None if duration_s is None else start_ns + round(duration_s * NS_PER_S)
+            sleep_s = watch_sleep_s(
+                now, status_in_s=next_status - loop.time(), duration_end_ns=end_ns, stop=stop
+            )
+        except Exception as err:  # the task raises it: supervise() lands or ends
+            if not ended.done():
+                ended.set_exception(err)
+            return
+        timer = loop.call_at(loop.time() + sleep_s, watch)
+
+    timer = loop.call_at(loop.time() + WATCH_PERIOD_S, watch)
+    try:
+        await ended
+    finally:
+        if timer is not None:
+            timer.cancel()
 
 
 def watch_sleep_s(
