@@ -225,15 +225,48 @@ class MatcherWorker:
                 raised (a bug: the pipeline never raises on bad data); the worker stays
                 usable after the last.
         """
+        if self._pipeline is not None:
+            return self.process_now(scan, pitch_rad, roll_rad, motion_prior)
         t0 = time.perf_counter()
         try:
-            if self._pipeline is not None:
-                result = self._pipeline.process(scan, pitch_rad, roll_rad, motion_prior)
-            else:
-                result = await self._submit_run(scan, pitch_rad, roll_rad, motion_prior)
+            result = await self._submit_run(scan, pitch_rad, roll_rad, motion_prior)
         except MatcherError:
             raise
         except Exception as err:  # a bug or an unpicklable input: this scan has no pose
+            msg = f"scan matcher failed on scan seq {getattr(scan, 'seq', '?')}: {err!r}"
+            raise MatcherError(msg) from err
+        self.last_round_trip_s = time.perf_counter() - t0
+        return result
+
+    @property
+    def runs_now(self) -> bool:
+        """:meth:`process_now` may stand for :meth:`process`: it would not suspend.
+
+        The pipeline runs on the caller's thread (``inline``, started), and
+        :meth:`process` is this class's own (a subclass that changes it is awaited).
+        """
+        return self._pipeline is not None and type(self).process is MatcherWorker.process
+
+    def process_now(
+        self,
+        scan: Scan,
+        pitch_rad: float,
+        roll_rad: float,
+        motion_prior: Pose | None = None,
+    ) -> LaserResult:
+        """:meth:`process` inline, without a coroutine: for a caller in a port's callback.
+
+        Raises:
+            MatcherError: not started inline, closed, or the pipeline raised (a bug).
+        """
+        pipeline = self._pipeline
+        if pipeline is None:
+            msg = "scan matcher does not run inline (or is closed)"
+            raise MatcherError(msg)
+        t0 = time.perf_counter()
+        try:
+            result = pipeline.process(scan, pitch_rad, roll_rad, motion_prior)
+        except Exception as err:  # a bug: this scan has no pose
             msg = f"scan matcher failed on scan seq {getattr(scan, 'seq', '?')}: {err!r}"
             raise MatcherError(msg) from err
         self.last_round_trip_s = time.perf_counter() - t0

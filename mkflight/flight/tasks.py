@@ -2,11 +2,14 @@
 
 * :func:`mk_task` - driven by DebugOut arrival (SPEC §2), not by a timer: one flight step
   per sample (:class:`~mkflight.flight.mk_step.MkStep`), until the phase machine
-  releases;
-* :func:`laser_task` - streams scans to the scan matcher, which runs in its own process
-  (:class:`~mkflight.flight.matcher_worker.MatcherWorker`) so that a 1-3 ms ICP never
-  delays a command; each result goes into the
-  :class:`~mkflight.flight.laser_inbox.LaserInbox` for the next step;
+  releases; the step runs in the port's callback that read the sample
+  (:meth:`~mkflight.mk.link.MkLink.serve`), not a loop turn later: the task only waits
+  for the end, a failure or the timeout;
+* :func:`laser_task` - streams scans to the scan matcher
+  (:class:`~mkflight.flight.matcher_worker.MatcherWorker`), inline in the port's callback
+  that read the scan, or in its own process so that a 1-3 ms ICP never delays a command;
+  each result goes into the :class:`~mkflight.flight.laser_inbox.LaserInbox` for the
+  next step;
 * :func:`watchdog_task` - a timer that only watches: ``--duration``, the stop deadline,
   the status line and systemd's STATUS; it wakes when one of them is due;
 * :func:`supervise` - runs them together: a crash of the laser or watchdog task lands
@@ -43,7 +46,7 @@ from mkflight.logs.schema import (
     StopDeadline,
 )
 from mkflight.mk.link import MkLink
-from mkflight.msgs import Scan
+from mkflight.msgs import ImuSample, Scan
 from mkflight.safety.failsafe import StopRequest
 from mkflight.urg.driver import UrgDriver
 
@@ -76,27 +79,28 @@ async def mk_task(
     await before_subscribe()
     link.set_blind_command(mk_step.blind_command)  # asked only when the data goes stale
     link.subscribe()  # a fresh subscription: pre-flight may have outlasted the last one
-    while True:
-        try:
-            sample = await link.next_sample(timeout_s)
-            if sample.t_ns < start_ns:
-                continue  # older than READY: the FC may have stopped streaming since
-            stop.check_deadline(clock.now_ns())
-            out = mk_step.step(sample)  # its command's write may find the port gone
-        except LinkError as err:
-            if link.error is not None:  # the port itself failed: try to hand back
-                with contextlib.suppress(Exception):  # nothing may keep us from handing back
-                    taps.mark("mk", "c", str(err))
-                with contextlib.suppress(LinkError, TimeoutError):
-                    async with asyncio.timeout(FC_REOPEN_S):
-                        await link.reopen(max_wait_s=FC_REOPEN_S)  # releases first
-            msg = f"FlightCtrl lost: {err}; it hands control to the pilot's sticks"
-            raise FlightError(msg) from err
-        if out.phase is Phase.RELEASED:
-            if mk_step.core.handed_in_air:  # the last resort: say so, exit 1
-                msg = "handed to the pilot in the air: the descent without height found no floor"
-                raise FlightError(msg)
-            return
+
+    def on_sample(sample: ImuSample) -> bool:
+        """One step (in the callback that read the DebugOut); True once RELEASED."""
+        if sample.t_ns < start_ns:
+            return False  # older than READY: the FC may have stopped streaming since
+        stop.check_deadline(clock.now_ns())
+        return mk_step.step(sample).phase is Phase.RELEASED  # its write may find the port gone
+
+    try:
+        await link.serve(on_sample, timeout_s)
+    except LinkError as err:
+        if link.error is not None:  # the port itself failed: try to hand back
+            with contextlib.suppress(Exception):  # nothing may keep us from handing back
+                taps.mark("mk", "c", str(err))
+            with contextlib.suppress(LinkError, TimeoutError):
+                async with asyncio.timeout(FC_REOPEN_S):
+                    await link.reopen(max_wait_s=FC_REOPEN_S)  # releases first
+        msg = f"FlightCtrl lost: {err}; it hands control to the pilot's sticks"
+        raise FlightError(msg) from err
+    if mk_step.core.handed_in_air:  # the last resort: say so, exit 1
+        msg = "handed to the pilot in the air: the descent without height found no floor"
+        raise FlightError(msg)
 
 
 async def laser_task(
@@ -119,9 +123,18 @@ async def laser_task(
     skip a scan; ``on_scan`` is told of each scan as it comes (the observer's).
     """
     timeout_s = max(1.0, stale_s * 3)
+
+    def match_now(scan: Scan) -> None:
+        """One scan through the inline matcher, in the callback that read it."""
+        on_scan(scan)
+        if scan_wanted(scan.seq):
+            pitch, roll = attitude.at(scan.t_ns)
+            inbox.put_matched(worker.process_now(scan, pitch, roll), clock.now_ns())
+
     while True:
         try:
-            scan = await driver.next_scan(timeout_s)
+            # An inline matcher runs in the port's callback: no loop turn per scan.
+            scan = await driver.next_scan(timeout_s, match_now if worker.runs_now else None)
         except LinkError as err:
             if driver.error is None:  # no scan in time: the driver keeps restarting
                 logs.event(LaserSilent(t_ns=clock.now_ns(), error=str(err)))
@@ -132,6 +145,9 @@ async def laser_task(
             await driver.reopen(max_wait_s=LASER_REOPEN_S)
             logs.event(LaserReopened(t_ns=clock.now_ns()))
             continue
+        except MatcherError as err:
+            msg = f"scan matcher failed: {err}"
+            raise FlightError(msg) from err
         on_scan(scan)
         if not scan_wanted(scan.seq):
             continue
@@ -156,28 +172,43 @@ async def watchdog_task(
     """``--duration``, the stop deadline, the status line: a timer that only watches.
 
     It wakes when something is due (:func:`watch_sleep_s`), not every 50 ms: the steps
-    check the stop deadline themselves, this is for when no step comes.
+    check the stop deadline themselves, this is for when no step comes. Its work runs in
+    the timer's own callback: a sleeping task would take a second loop turn per wake-up
+    (the sleep's timer, then the task). The task only waits for an error, raised here.
     """
-    next_status = 0.0
     loop = asyncio.get_running_loop()  # its time: the lock-step clock in a replay
-    sleep_s = WATCH_PERIOD_S
-    while True:
-        await asyncio.sleep(sleep_s)
-        now = clock.now_ns()
-        elapsed_s = (now - start_ns) / NS_PER_S
-        if duration_s is not None and elapsed_s >= duration_s and stop.request is None:
-            request_stop(StopRequest.DURATION, f"--duration {duration_s:g} s")
-        now = clock.now_ns()
-        stop.check_deadline(now)
-        if loop.time() >= next_status:
-            next_status = loop.time() + STATUS_PERIOD_S
-            show_status()
-        sleep_s = watch_sleep_s(
-            now,
-            status_in_s=next_status - loop.time(),
-            duration_end_ns=None if duration_s is None else start_ns + round(duration_s * NS_PER_S),
-            stop=stop,
-        )
+    ended: asyncio.Future[None] = loop.create_future()
+    next_status = 0.0
+    timer: asyncio.TimerHandle | None = None
+
+    def watch() -> None:
+        nonlocal next_status, timer
+        try:
+            now = clock.now_ns()
+            elapsed_s = (now - start_ns) / NS_PER_S
+            if duration_s is not None and elapsed_s >= duration_s and stop.request is None:
+                request_stop(StopRequest.DURATION, f"--duration {duration_s:g} s")
+            now = clock.now_ns()
+            stop.check_deadline(now)
+            if loop.time() >= next_status:
+                next_status = loop.time() + STATUS_PERIOD_S
+                show_status()
+            end_ns = None if duration_s is None else start_ns + round(duration_s * NS_PER_S)
+            sleep_s = watch_sleep_s(
+                now, status_in_s=next_status - loop.time(), duration_end_ns=end_ns, stop=stop
+            )
+        except Exception as err:  # the task raises it: supervise() lands or ends
+            if not ended.done():
+                ended.set_exception(err)
+            return
+        timer = loop.call_at(loop.time() + sleep_s, watch)
+
+    timer = loop.call_at(loop.time() + WATCH_PERIOD_S, watch)
+    try:
+        await ended
+    finally:
+        if timer is not None:
+            timer.cancel()
 
 
 def watch_sleep_s(

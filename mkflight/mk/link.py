@@ -270,6 +270,7 @@ class MkLink:
                     self._tap("r", t_ns, data)
                 for frame in self._parser.feed(data):
                     self._dispatch(frame, t_ns)
+                self._rx.deliver()
         except LinkError as err:
             self._port_dead = True
             self._fail(err)
@@ -288,6 +289,7 @@ class MkLink:
                 self._tap("r", t_ns, data)
             for frame in self._parser.feed(data):
                 self._dispatch(frame, t_ns)
+            self._rx.deliver()
         except Exception as err:  # a bug: as _read_loop's; a later start() reads again
             self._stop_pushing()
             log.exception("mk_reader_crashed", port=self.port)
@@ -399,6 +401,21 @@ class MkLink:
             LinkError: the link failed, or nothing arrived within ``timeout_s``.
         """
         return self._rx.next_sample(timeout_s)  # its coroutine: one frame less to resume
+
+    async def serve(
+        self, on_sample: Callable[[ImuSample], bool], timeout_s: float | None = None
+    ) -> None:
+        """Hand every newest DebugOut to ``on_sample`` until it returns True.
+
+        As :meth:`next_sample` in a loop (renewal, staleness, the release, the timeout),
+        but while it waits each sample is handed over in the callback that read it: no
+        event-loop turn per sample (see :mod:`mkflight.mk.subscription`).
+
+        Raises:
+            LinkError: the link failed, or nothing arrived within ``timeout_s``.
+            Exception: whatever ``on_sample`` raised.
+        """
+        await self._rx.serve(on_sample, timeout_s)
 
     # ----- sending (delegated to the CommandSender, mkflight.mk.sender) -----------------
 

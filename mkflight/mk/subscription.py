@@ -86,12 +86,15 @@ class DebugSubscription:
         self._latest: ImuSample | None = None
         self._sample_waiter: asyncio.Future[None] | None = None
         self._timer: asyncio.TimerHandle | None = None  # ends a wait (_wait_until)
-        self._wait_due = 0.0  # loop time at which the current wait ends
         self._last_subscribe_ns = _OFF
         self._last_sample_ns: int | None = None
         self._stale = False
         self._want_version = False
         self._renew_after_ns = _OFF  # no 'd' before this (after a stale-data release)
+        self._inline: Callable[[ImuSample], bool] | None = None  # serve()'s, while it waits
+        self._served: BaseException | bool = False  # what an inline call ended serve() with
+        self._started_ns = 0  # the current wait's start (its timeout counts from here)
+        self._served_timeout_s: float | None = None
         self.blind_command: Callable[[], ExternControl | None] | None = None
         """Asked once when the data goes stale while we have control: what to send then."""
 
@@ -135,7 +138,7 @@ class DebugSubscription:
         self._stats.samples += 1
         if self._latest is not None:
             self._stats.samples_dropped += 1  # the consumer fell behind: newest wins
-        self._latest = imu_from_analog(analog, t_ns, self._cal)
+        sample = imu_from_analog(analog, t_ns, self._cal)
         if self._stale:
             self._stale = False
             self._renew_after_ns = _OFF
@@ -143,7 +146,54 @@ class DebugSubscription:
             # from the consumer's next call so that it cannot delay this sample's command.
             self._want_version = True
             log.info("mk_data_resumed", port=self._port)
-        self.wake()
+        self._latest = sample
+        if self._inline is None:
+            self.wake()  # else the link calls deliver() once the chunk's frames are filed
+
+    def deliver(self) -> None:
+        """The link filed a chunk's frames: a new sample goes to :meth:`serve` now.
+
+        After the whole chunk, so that the step sees the confirms that came with the
+        sample, as it did when it ran a loop turn later.
+        """
+        if self._latest is None:
+            return
+        handler, waiter = self._inline, self._sample_waiter
+        if handler is not None and waiter is not None and not waiter.done():
+            sample, self._latest = self._latest, None
+            self._serve_inline(handler, sample)
+        else:
+            self.wake()
+
+    def _serve_inline(self, handler: Callable[[ImuSample], bool], sample: ImuSample) -> None:
+        """:meth:`serve`'s step on ``sample``, in the callback that read it.
+
+        What :meth:`serve` would do a loop turn later (the handler, then what
+        :meth:`next_sample` does before it waits again), without that turn. A sample
+        that arrives inside the handler (a fake that answers in the write) waits as
+        usual. An error or the end is handed to :meth:`serve` through its waiter.
+        """
+        self._inline = None
+        try:
+            done = handler(sample)
+        except Exception as err:  # the serving task raises it (a crash ends the flight)
+            self._served = err
+            self.wake()
+            return
+        waiter = self._sample_waiter
+        if done:
+            self._served = True
+            self.wake()
+            return
+        if waiter is None or waiter.done():
+            return  # woken meanwhile (a failure, a sample): the task goes on from there
+        self._before_wait()
+        now = self._clock.now_ns()
+        self._started_ns = now
+        wait_s = self._wait_s(now, sample.t_ns, self._served_timeout_s)
+        loop = asyncio.get_running_loop()
+        self._wait_until(loop, loop.time() + max(wait_s, 0.001))
+        self._inline = handler
 
     def wake(self) -> None:
         """Wake a waiting :meth:`next_sample` (a sample arrived, or the link failed)."""
@@ -159,17 +209,56 @@ class DebugSubscription:
 
     async def next_sample(self, timeout_s: float | None = None) -> ImuSample:
         """The newest DebugOut as an :class:`ImuSample` (see ``MkLink.next_sample``)."""
-        s = self._settings
-        now = self._clock.now_ns()
-        if now - self._last_subscribe_ns >= self._resubscribe_ns:
+        self._before_wait()
+        sample = await self._wait_sample(timeout_s, None)
+        assert sample is not None  # no handler: only a sample ends the wait
+        return sample
+
+    async def serve(self, on_sample: Callable[[ImuSample], bool], timeout_s: float | None) -> None:
+        """Hand every newest sample to ``on_sample`` until it returns True (``MkLink.serve``).
+
+        While this waits, a DebugOut is handed over in the callback that read it, not a
+        loop turn later in this task: each turn of the event loop costs ~0.1 ms of CPU
+        before any work. The subscription is renewed and the staleness watched as for
+        :meth:`next_sample`; ``on_sample``'s exceptions are raised here.
+        """
+        self._served_timeout_s = timeout_s
+        self._before_wait()
+        while True:
+            sample = await self._wait_sample(timeout_s, on_sample)
+            if sample is None or on_sample(sample):
+                return
+            self._before_wait()
+
+    def _before_wait(self) -> None:
+        """Renew the subscription if due, ask the version if wanted: before each wait."""
+        if self._clock.now_ns() - self._last_subscribe_ns >= self._resubscribe_ns:
             self.subscribe()
         if self._want_version:
             self._want_version = False
             self._tx.send("v", version_request())
-        started = now
+
+    def _wait_s(self, now: int, last: int, timeout_left_s: float | None) -> float:
+        """How long the wait may last: until the next renewal, release or timeout is due."""
+        s = self._settings
+        since_renewal_s = (now - max(last, self._last_subscribe_ns)) / NS_PER_S
+        wait_s = s.stale_s - since_renewal_s
+        if self._tx.engaged:
+            wait_s = min(wait_s, s.release_after_stale_s - (now - last) / NS_PER_S)
+        if timeout_left_s is not None:
+            wait_s = min(wait_s, timeout_left_s)
+        return wait_s
+
+    async def _wait_sample(
+        self, timeout_s: float | None, inline: Callable[[ImuSample], bool] | None
+    ) -> ImuSample | None:
+        """The next sample; with ``inline``, samples meanwhile go to it (None: it ended)."""
+        s = self._settings
+        self._started_ns = self._clock.now_ns()
         while self._latest is None:
             self._check_failed()
             now = self._clock.now_ns()
+            started = self._started_ns
             last = self._last_sample_ns if self._last_sample_ns is not None else started
             stale_s = (now - last) / NS_PER_S
             since_renewal_s = (now - max(last, self._last_subscribe_ns)) / NS_PER_S
@@ -178,56 +267,52 @@ class DebugSubscription:
                 continue
             if since_renewal_s >= s.stale_s and now >= self._renew_after_ns:
                 self._on_stale()
-                since_renewal_s = 0.0
-            wait_s = s.stale_s - since_renewal_s
-            if self._tx.engaged:
-                wait_s = min(wait_s, s.release_after_stale_s - stale_s)
+            left_s = None
             if timeout_s is not None:
                 left_s = timeout_s - (now - started) / NS_PER_S
                 if left_s <= 0:
                     msg = f"no DebugOut from {self._port} for {timeout_s:g} s"
                     raise LinkError(msg)
-                wait_s = min(wait_s, left_s)
+            wait_s = self._wait_s(now, last, left_s)
             # Await the bare future, here rather than in a helper coroutine (asyncio.wait_for
             # would add an event-loop turn to every sample's path, a helper a frame to
             # resume); the wake-up timer resolves it when the wait is over.
             loop = asyncio.get_running_loop()
             waiter = self._sample_waiter = loop.create_future()
             self._wait_until(loop, loop.time() + max(wait_s, 0.001))
+            self._inline = inline
             try:
                 await waiter
             finally:
                 self._sample_waiter = None
+                self._inline = None
+            served, self._served = self._served, False
+            if isinstance(served, BaseException):
+                raise served
+            if served:
+                return None
         sample, self._latest = self._latest, None
         return sample
 
     def _wait_until(self, loop: asyncio.AbstractEventLoop, due: float) -> None:
         """Have the waiter resolved at loop time ``due`` unless a sample comes first.
 
-        One timer serves many waits: while samples flow, each wait ends ~50 ms later
-        than the one before and the timer armed for an earlier one stays; when it fires
-        before the newest wait's end it moves there without waking the consumer. A
-        timer armed and cancelled on every sample would cost more than that one move
-        every ``stale_s``. A wait that must end sooner than the timer is re-armed.
+        The timer is re-armed for every wait: while samples flow it never fires, for
+        ~5 us of cancel and re-arm a sample. A timer left armed and moved only when it
+        fires before the wait's end fires every ``stale_s``, each time a loop turn of its
+        own (~0.15 ms of CPU before any work): measured, that costs more.
         """
-        self._wait_due = due
         timer = self._timer
         if timer is not None:
-            if timer.when() <= due:
-                return
             timer.cancel()
-        self._timer = loop.call_at(due, self._on_timer, loop)
+        self._timer = loop.call_at(due, self._on_timer)
 
-    def _on_timer(self, loop: asyncio.AbstractEventLoop) -> None:
-        """The wake-up timer fired: end the wait if it is due, else move to its end."""
-        timer, self._timer = self._timer, None
+    def _on_timer(self) -> None:
+        """The wake-up timer fired: the wait is over."""
+        self._timer = None
         waiter = self._sample_waiter
-        if waiter is None or waiter.done():
-            return  # nobody waits: the next wait arms a timer again
-        if timer is not None and self._wait_due > timer.when():
-            self._timer = loop.call_at(self._wait_due, self._on_timer, loop)
-            return
-        waiter.set_result(None)
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
 
     def _on_stale(self) -> None:
         if not self._stale:

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+from collections.abc import Callable
 
 import structlog
 
@@ -37,7 +38,7 @@ from mkflight.config import LaserConfig
 from mkflight.conversions import NS_PER_S
 from mkflight.errors import LinkError, ProtocolError
 from mkflight.io.reopen import open_with_backoff
-from mkflight.io.stream import ByteStream, Opener, Tap, resolve_waiter
+from mkflight.io.stream import ByteStream, Opener, PushStream, Tap, resolve_waiter
 from mkflight.msgs import Scan
 from mkflight.urg.codec import md_command, scip2_command, simple_command, tm_command
 from mkflight.urg.driver_types import UrgInfo, UrgStats, streamed_steps
@@ -76,6 +77,8 @@ class UrgDriver:
         self.info: UrgInfo | None = None
         self._stamper = ScanStamper(self._cfg.transport_delay_s)
         self._reader: asyncio.Task[None] | None = None
+        self._pushed = False  # the stream hands chunks to _on_chunk (no reader task)
+        self._push: PushStream | None = _push_stream(stream)
         self._error: LinkError | None = None
         self._waiters: list[tuple[bytes, asyncio.Future[Reply]]] = []
         self._last_rx_ns = 0
@@ -83,6 +86,11 @@ class UrgDriver:
         self._md: bytes | None = None
         self._latest: Scan | None = None
         self._scan_waiter: asyncio.Future[None] | None = None
+        self._scan_timer: asyncio.TimerHandle | None = None  # ends the wait (a stall)
+        self._inline: Callable[[Scan], None] | None = None  # next_scan's, while it waits
+        self._inline_error: Exception | None = None  # what it raised, for next_scan
+        self._wait_started = 0.0  # loop time the current wait's timeout counts from
+        self._inline_timeout_s: float | None = None
         self._last_scan_ns: int | None = None
         self._sum_errors_seen = 0
         self._restarts_in_a_row = 0
@@ -91,7 +99,18 @@ class UrgDriver:
     # ----- lifecycle -------------------------------------------------------------------
 
     def start(self) -> None:
-        """Start the reader task (idempotent)."""
+        """Start reading (idempotent).
+
+        In the port's own callback if it offers one (:class:`PushStream`): a scan's
+        chunks are parsed as they arrive, with no reader task woken per chunk; else in a
+        reader task.
+        """
+        if self._closed or self._pushed:
+            return
+        if self._push is not None:
+            self._pushed = True
+            self._push.deliver_to(self._on_chunk, self._on_end)
+            return
         if self._reader is None or self._reader.done():
             self._reader = asyncio.get_running_loop().create_task(
                 self._read_loop(), name=f"urg-reader {self.port}"
@@ -173,6 +192,7 @@ class UrgDriver:
         if self._error is None:
             with contextlib.suppress(LinkError, ProtocolError, TimeoutError):
                 await self._request(simple_command("QT"), timeout_s=0.3)
+        self._stop_pushing()
         reader, self._reader = self._reader, None
         if reader is not None:
             reader.cancel()
@@ -191,6 +211,7 @@ class UrgDriver:
         if self._closed or self._opener is None:
             msg = f"{self.port}: cannot re-open (closed, or no opener)"
             raise LinkError(msg)
+        self._stop_pushing()
         if self._reader is not None:
             self._reader.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
@@ -205,6 +226,7 @@ class UrgDriver:
             backoff_max_s=self._cfg.reopen_backoff_max_s,
             log_event="urg_reopen_retry",
         )
+        self._push = _push_stream(self._stream)
         self._parser.reset()
         self._error = None
         self._latest = None
@@ -292,6 +314,7 @@ class UrgDriver:
                     self._tap("r", t_ns, data)
                 for reply in self._parser.feed(data):
                     self._dispatch(reply, t_ns)
+                self._deliver()
         except LinkError as err:
             self._fail(err)
         except asyncio.CancelledError:
@@ -299,6 +322,32 @@ class UrgDriver:
         except Exception as err:  # a bug: consumers must not wait forever
             log.exception("urg_reader_crashed", port=self.port)
             self._fail(LinkError(f"{self.port}: laser reader crashed: {err!r}"))
+
+    def _on_chunk(self, data: bytes) -> None:
+        """A chunk the port handed over as it arrived: what _read_loop does with one."""
+        try:
+            t_ns = self._clock.now_ns()
+            self._last_rx_ns = t_ns
+            if self._tap is not None:
+                self._tap("r", t_ns, data)
+            for reply in self._parser.feed(data):
+                self._dispatch(reply, t_ns)
+            self._deliver()
+        except Exception as err:  # a bug: as _read_loop's; consumers must not wait forever
+            self._stop_pushing()
+            log.exception("urg_reader_crashed", port=self.port)
+            self._fail(LinkError(f"{self.port}: laser reader crashed: {err!r}"))
+
+    def _on_end(self, err: LinkError) -> None:
+        """The port handed over its end (it vanished, or it was closed)."""
+        self._pushed = False
+        self._fail(err)
+
+    def _stop_pushing(self) -> None:
+        if self._pushed:
+            self._pushed = False
+            if self._push is not None:
+                self._push.deliver_to(None, None)
 
     def _dispatch(self, reply: Reply, t_ns: int) -> None:
         if isinstance(reply, ScanReply) and reply.status != "00":
@@ -332,7 +381,47 @@ class UrgDriver:
         self._last_scan_ns = t_ns
         self._sum_errors_seen = self._parser.stats.sum_errors
         self._restarts_in_a_row = 0
-        self._wake()
+        if self._inline is None:
+            self._wake()  # else _deliver() hands it over once the chunk is parsed
+
+    def _deliver(self) -> None:
+        """A chunk is parsed: a new scan goes to :meth:`next_scan`'s ``inline`` now.
+
+        What the task would do with it a loop turn later, without that turn; then the
+        wait goes on as :meth:`next_scan`'s next call would begin it (its stall timer
+        from now). An error of ``inline`` is raised by :meth:`next_scan`.
+        """
+        if self._latest is None:
+            return
+        handler, waiter = self._inline, self._scan_waiter
+        if handler is None or waiter is None or waiter.done():
+            self._wake()
+            return
+        scan, self._latest = self._latest, None
+        self._inline = None
+        try:
+            handler(scan)
+        except Exception as err:  # the task raises it (a matcher failure lands)
+            self._inline_error = err
+            self._wake()
+            return
+        if waiter.done():
+            return  # woken meanwhile: the task goes on from there
+        last = self._last_scan_ns
+        stalled_s = 0.0 if last is None else (self._clock.now_ns() - last) / NS_PER_S
+        sum_run = self._parser.stats.sum_errors - self._sum_errors_seen
+        if last is None or stalled_s >= self._cfg.stall_s or sum_run >= self._cfg.sum_error_run:
+            self._wake()  # a restart is due: the task's loop does it
+            return
+        loop = asyncio.get_running_loop()
+        self._wait_started = loop.time()
+        wait_s = self._cfg.stall_s - stalled_s
+        if self._inline_timeout_s is not None:
+            wait_s = min(wait_s, self._inline_timeout_s)
+        if self._scan_timer is not None:
+            self._scan_timer.cancel()
+        self._scan_timer = loop.call_later(max(wait_s, 0.001), resolve_waiter, waiter)
+        self._inline = handler
 
     def _wake(self) -> None:
         waiter = self._scan_waiter
@@ -357,18 +446,25 @@ class UrgDriver:
     @property
     def closed(self) -> bool:
         """:meth:`close` has stopped the reader: nothing more is read from the port."""
-        return self._closed and self._reader is None
+        return self._closed and self._reader is None and not self._pushed
 
-    async def next_scan(self, timeout_s: float | None = None) -> Scan:
+    async def next_scan(
+        self, timeout_s: float | None = None, inline: Callable[[Scan], None] | None = None
+    ) -> Scan:
         """The newest scan (older ones not picked up are dropped and counted).
 
-        Restarts a stalled, erroring or checksum-failing stream on the way.
+        Restarts a stalled, erroring or checksum-failing stream on the way. With
+        ``inline``, each scan that arrives while this waits goes to ``inline`` in the
+        callback that read it (no loop turn to wake the caller) and the wait goes on;
+        ``timeout_s`` then counts from the last scan.
 
         Raises:
             LinkError: the device failed or vanished, or no scan within ``timeout_s``.
+            Exception: whatever ``inline`` raised.
         """
         loop = asyncio.get_running_loop()
-        started = loop.time()
+        self._wait_started = loop.time()
+        self._inline_timeout_s = timeout_s
         while self._latest is None:
             if self._error is not None:
                 raise self._error
@@ -387,17 +483,29 @@ class UrgDriver:
                 continue
             wait_s = self._cfg.stall_s - stalled_s
             if timeout_s is not None:
-                left_s = timeout_s - (loop.time() - started)
+                left_s = timeout_s - (loop.time() - self._wait_started)
                 if left_s <= 0:
                     msg = f"no scan from the laser on {self.port} for {timeout_s:g} s"
                     raise LinkError(msg)
                 wait_s = min(wait_s, left_s)
             waiter = self._scan_waiter = loop.create_future()
-            timer = loop.call_later(max(wait_s, 0.001), resolve_waiter, waiter)
+            self._scan_timer = loop.call_later(max(wait_s, 0.001), resolve_waiter, waiter)
+            self._inline = inline
             try:
                 await waiter
             finally:
-                timer.cancel()
+                if self._scan_timer is not None:
+                    self._scan_timer.cancel()
+                self._scan_timer = None
                 self._scan_waiter = None
+                self._inline = None
+            err, self._inline_error = self._inline_error, None
+            if err is not None:
+                raise err
         scan, self._latest = self._latest, None
         return scan
+
+
+def _push_stream(stream: ByteStream) -> PushStream | None:
+    """``stream`` if it hands chunks over as they arrive (asked once: a costly check)."""
+    return stream if isinstance(stream, PushStream) else None
