@@ -67,8 +67,11 @@ class SerialStream:
     def write(self, data: bytes) -> None:
         """Hand ``data`` to the kernel now (serialx writes before it buffers)."""
         if self._transport.is_closing():
+            # serialx closes the transport on a failed read at once but tells the protocol
+            # (connection_lost, which names the error) a loop turn later: a write between
+            # the two finds no error yet, and says what it knows.
             error = self._protocol.rx.error
-            msg = f"{self._name}: port is closed" if error is None else str(error)
+            msg = f"{self._name}: write failed, port closed" if error is None else str(error)
             raise LinkError(msg)
         try:
             self._transport.write(data)
