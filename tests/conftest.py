@@ -58,36 +58,6 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     if absent:
         config.hook.pytest_deselected(items=absent)
         items[:] = keep
-    items.sort(key=_handed_out)  # stable: a file's tests stay in their order
-
-
-#: The files that take longest (their flights, in real time), in the order the README's
-#: test command (``pytest -n 2 --dist loadfile``: a file's tests in one worker, so a
-#: module's flights are flown once) hands them out, before all others; otherwise xdist
-#: hands out the files with the most tests first and a long one last keeps one worker
-#: busy alone. test_fly comes when the campaign is about done, in the same worker:
-#: its four flights at once and the campaign's four never add up on two cores. Seconds
-#: on a quiet 2-core CI machine.
-LONGEST_FIRST = (
-    "faults/test_campaign.py",  # 31 flights, four at a time: ~165 s
-    "integration/test_replay.py",  # ~55 s
-    "integration/test_fly_faults_inprocess.py",  # ~50 s
-    "ground/test_live.py",  # ~40 s
-    "replay/test_damaged.py",  # ~40 s
-    "integration/test_fly.py",  # nine flights, four at a time: ~85 s
-    "tools/test_soak.py",  # ~35 s
-    "test_lint.py",  # mypy --strict: ~30 s
-    "ground/test_report.py",  # ~25 s
-    "logs/test_flights_list.py",  # ~20 s
-    "ground/test_export.py",  # ~20 s
-)
-_RANK = {path: i for i, path in enumerate(LONGEST_FIRST)}
-
-
-def _handed_out(item: pytest.Item) -> int:
-    """Where ``item``'s file comes in :data:`LONGEST_FIRST` (after it: the others)."""
-    path = Path(item.path).resolve().relative_to(Path(__file__).resolve().parent).as_posix()
-    return _RANK.get(path, len(_RANK))
 
 
 @pytest.fixture(scope="session")
