@@ -264,13 +264,7 @@ class MkLink:
     async def _read_loop(self) -> None:
         try:
             while True:
-                data = await self._stream.read()
-                t_ns = self._clock.now_ns()
-                if self._tap is not None:
-                    self._tap("r", t_ns, data)
-                for frame in self._parser.feed(data):
-                    self._dispatch(frame, t_ns)
-                self._rx.deliver()
+                self._take(await self._stream.read())
         except LinkError as err:
             self._port_dead = True
             self._fail(err)
@@ -284,17 +278,21 @@ class MkLink:
     def _on_chunk(self, data: bytes) -> None:
         """A chunk the port handed over as it arrived: what _read_loop does with one."""
         try:
-            t_ns = self._clock.now_ns()
-            if self._tap is not None:
-                self._tap("r", t_ns, data)
-            for frame in self._parser.feed(data):
-                self._dispatch(frame, t_ns)
-            self._rx.deliver()
+            self._take(data)
         except Exception as err:  # a bug: as _read_loop's; a later start() reads again
             self._stop_pushing()
             log.exception("mk_reader_crashed", port=self.port)
             self._tx.block("the link's reader crashed")
             self._fail(LinkError(f"{self.port}: reader crashed: {err!r}"))
+
+    def _take(self, data: bytes) -> None:
+        """One chunk read: stamped, recorded, its frames filed, a new sample handed on."""
+        t_ns = self._clock.now_ns()
+        if self._tap is not None:
+            self._tap("r", t_ns, data)
+        for frame in self._parser.feed(data):
+            self._dispatch(frame, t_ns)
+        self._rx.deliver()
 
     def _on_end(self, err: LinkError) -> None:
         """The port handed over its end (it vanished, or it was closed)."""

@@ -307,14 +307,7 @@ class UrgDriver:
     async def _read_loop(self) -> None:
         try:
             while True:
-                data = await self._stream.read()
-                t_ns = self._clock.now_ns()
-                self._last_rx_ns = t_ns
-                if self._tap is not None:
-                    self._tap("r", t_ns, data)
-                for reply in self._parser.feed(data):
-                    self._dispatch(reply, t_ns)
-                self._deliver()
+                self._take(await self._stream.read())
         except LinkError as err:
             self._fail(err)
         except asyncio.CancelledError:
@@ -326,17 +319,21 @@ class UrgDriver:
     def _on_chunk(self, data: bytes) -> None:
         """A chunk the port handed over as it arrived: what _read_loop does with one."""
         try:
-            t_ns = self._clock.now_ns()
-            self._last_rx_ns = t_ns
-            if self._tap is not None:
-                self._tap("r", t_ns, data)
-            for reply in self._parser.feed(data):
-                self._dispatch(reply, t_ns)
-            self._deliver()
+            self._take(data)
         except Exception as err:  # a bug: as _read_loop's; consumers must not wait forever
             self._stop_pushing()
             log.exception("urg_reader_crashed", port=self.port)
             self._fail(LinkError(f"{self.port}: laser reader crashed: {err!r}"))
+
+    def _take(self, data: bytes) -> None:
+        """One chunk read: stamped, recorded, its replies parsed, a new scan handed on."""
+        t_ns = self._clock.now_ns()
+        self._last_rx_ns = t_ns
+        if self._tap is not None:
+            self._tap("r", t_ns, data)
+        for reply in self._parser.feed(data):
+            self._dispatch(reply, t_ns)
+        self._deliver()
 
     def _on_end(self, err: LinkError) -> None:
         """The port handed over its end (it vanished, or it was closed)."""
