@@ -286,7 +286,13 @@ class MkLink:
             self._fail(LinkError(f"{self.port}: reader crashed: {err!r}"))
 
     def _take(self, data: bytes) -> None:
-        """One chunk read: stamped, recorded, its frames filed, a new sample handed on."""
+        """One chunk read: stamped, recorded, its frames filed, a new sample handed on.
+
+        A frame that fell due before the chunk arrived goes out first (see
+        :meth:`~mkflight.mk.outbox.Outbox.flush_due`): what the FC said cannot reorder what
+        we had already decided to send.
+        """
+        self._tx.flush_due()
         t_ns = self._clock.now_ns()
         if self._tap is not None:
             self._tap("r", t_ns, data)

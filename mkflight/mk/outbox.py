@@ -72,6 +72,19 @@ class Outbox:
         self._arm()
         return False
 
+    def flush_due(self) -> None:
+        """Write the first queued frame now if its time has come and its timer has not run.
+
+        A loop that could not keep time (a starved CPU) runs a port's callback before the
+        timers that fell due meanwhile. Called before a received chunk is handled, this sends
+        a frame that was due before the bytes arrived first, as a loop that kept time would
+        have: a newer command then cannot supersede it, and the replay, whose lock-step
+        clock fires the timer on time, makes the same frames.
+        """
+        if self._timer is not None and self._now() >= self._free_s:
+            self._timer.cancel()
+            self._flush()
+
     def _write(self, kind: str, data: bytes, frame_no: int, now: float) -> None:
         self._writer(kind, data, frame_no)
         self._free_s = now + wire_s(len(data), self._baudrate) + self._gap_s

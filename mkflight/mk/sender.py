@@ -126,6 +126,10 @@ class CommandSender:
         self._outbox.send(kind, data, frame_no)
         self._stats.delayed_writes = self._outbox.delayed
 
+    def flush_due(self) -> None:
+        """Write a queued frame whose time came while the loop was busy (before input)."""
+        self._outbox.flush_due()
+
     def written(self, frame_no: int, t_ns: int) -> None:
         """The link wrote frame ``frame_no`` (0: not a numbered command) at ``t_ns``."""
         if frame_no:

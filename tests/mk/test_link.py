@@ -3,20 +3,24 @@
 from __future__ import annotations
 
 import asyncio
+import time
 
 import pytest
 
 from mkflight.clock import ManualClock
 from mkflight.config import MkConfig, SafetyConfig
 from mkflight.errors import CommandRangeError, LinkError
+from mkflight.io.pty import PtyDevice
+from mkflight.io.serial import open_serial
 from mkflight.io.stream import MemoryStream, memory_pair
-from mkflight.mk.codec import Frame, encode_frame
+from mkflight.mk.codec import Frame, FrameParser, encode_frame
 from mkflight.mk.link import MkLink
 from mkflight.mk.messages import (
     ExternControl,
     VersionInfo,
 )
 from mkflight.mk.units import DEFAULT_CALIBRATION
+from mkflight.msgs import ImuSample
 
 from .fakes import FAST, MK08, FakeFc, _until, link_settings
 
@@ -112,6 +116,39 @@ async def test_frames_are_spaced_by_the_minimum_gap(pair: tuple[MkLink, FakeFc])
     assert await link.wait_confirm(2, timeout_s=1.0)
     assert await link.wait_confirm(1, timeout_s=0.0)  # the superseded frame is not waited for
     assert link.stats.superseded_commands == 1
+
+
+async def test_a_frame_due_before_a_chunk_arrived_leaves_before_the_chunk_is_handled() -> None:
+    """Over a real pty: a starved loop runs the port's callback (and the step in it) before
+    the outbox timer that fell due meanwhile. The queued command must still go out, ahead
+    of the step's newer one: superseded, it would be missing here but sent by a replay,
+    whose lock-step clock runs the timer on time (issue 21's flaky replays)."""
+    device = PtyDevice("fc")
+    link = MkLink(await open_serial(device.path, 57600), FAST, DEFAULT_CALIBRATION)
+    try:
+
+        def step(sample: ImuSample) -> bool:
+            link.send_extern_control(ExternControl(nick=2))
+            return True
+
+        served = asyncio.create_task(link.serve(step, timeout_s=1.0))
+        await asyncio.sleep(0)  # serving (it subscribed): each sample stepped in the callback
+        link.send_extern_control(ExternControl(nick=1))  # within the gap after 'd': queued
+        assert link.stats.delayed_writes == 1
+        device.write(MK08.encode())  # the DebugOut the subscription asked for
+        # The loop starved (the point of the test): no timer and no callback runs meanwhile.
+        time.sleep(FAST.min_frame_gap_s + 0.01)  # noqa: ASYNC251
+        await served
+        parser = FrameParser()
+        frames: list[Frame] = []
+        while len(frames) < 3:
+            frames += parser.feed(await asyncio.wait_for(device.read(), 1.0))
+        assert [f.cmd for f in frames] == ["d", "b", "b"]
+        assert [ExternControl.decode(f).nick for f in frames[1:]] == [1, 2]
+        assert link.stats.superseded_commands == 0
+    finally:
+        await link.close(release=False)
+        await device.close()
 
 
 async def test_close_releases_control_with_config_zero(pair: tuple[MkLink, FakeFc]) -> None:
