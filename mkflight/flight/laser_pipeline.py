@@ -298,7 +298,9 @@ class LaserPipeline:
         self._prev_t_ns: int | None = None
         self._have_reference = False
         self._last_layout: tuple[tuple[int, int], ScanLayout] | None = None
-        self._geometry = load_kernel(cfg.scanmatch.kernel).scan_geometry
+        #: the matcher's kernel (``scanmatch.kernel``): its compiled functions, if any
+        self.kernel = load_kernel(cfg.scanmatch.kernel)
+        self._geometry = self.kernel.scan_geometry
         self._geometry_params = geometry_params(self._hat, self._laser)
         self._hat_out = np.zeros(N_HAT_OUT)
 

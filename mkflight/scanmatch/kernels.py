@@ -31,6 +31,7 @@ from mkflight.scanmatch.kernel_numpy import (
     FloatArray,
     IntArray,
 )
+from mkflight.urg.replies import BlockDecoder
 
 KernelName = Literal["auto", "numba", "numpy"]
 #: ``kernel_numba.track_step``'s signature: points, keyframe rows, state, params, line
@@ -80,8 +81,9 @@ class Kernel:
 
     ``track_step``: a whole scan of the keyframe matcher in one call; ``beam_points``: a
     log's beams to points in one call; ``scan_geometry``: a URG scan's hat height and level
-    points in one call (:mod:`kernel_scan`) (compiled kernel only; None: the callers take
-    their Python paths, with the same results).
+    points in one call (:mod:`kernel_scan`); ``scan_blocks``: a URG scan's SCIP data
+    blocks checked and decoded in one call (:mod:`mkflight.urg.kernel_numba`) (compiled
+    kernel only; None: the callers take their Python paths, with the same results).
     """
 
     name: Literal["numba", "numpy"]
@@ -90,6 +92,7 @@ class Kernel:
     track_step: TrackStep | None = None
     beam_points: Callable[[FloatArray, BoolArray, FloatArray], FloatArray] | None = None
     scan_geometry: ScanGeometry | None = None
+    scan_blocks: BlockDecoder | None = None
 
 
 NUMPY = Kernel("numpy", kernel_numpy.reference_rows, kernel_numpy.icp_solve)
@@ -131,6 +134,11 @@ def warm_up(kernel: Kernel) -> None:
         kernel.scan_geometry(
             ranges, 0, 20, 8, 20, 100, cos_b, sin_b, c, s, c, s, c * c, geometry, hat_out
         )
+    if kernel.scan_blocks is not None:
+        # two blocks of SCIP characters with their sums ('0' + 6 bits of the byte sum)
+        block = b"0" * 64
+        line = block + bytes(((sum(block) & 0x3F) + 0x30,))
+        kernel.scan_blocks(np.frombuffer(line + b"\n" + line, np.uint8), 3)
 
 
 @functools.cache
@@ -138,6 +146,7 @@ def _compiled() -> Kernel | None:
     """The numba kernel, compiled and run once; None when numba is missing or fails."""
     try:
         from mkflight.scanmatch import kernel_numba, kernel_scan
+        from mkflight.urg import kernel_numba as urg_kernel
 
         kernel = Kernel(
             "numba",
@@ -146,6 +155,7 @@ def _compiled() -> Kernel | None:
             kernel_numba.track_step,
             kernel_numba.beam_points,
             kernel_scan.scan_geometry,
+            urg_kernel.scan_blocks,
         )
         warm_up(kernel)
     except Exception as err:  # not installed, no cache directory, a compiler error
