@@ -138,7 +138,7 @@ def warm_up(kernel: Kernel) -> None:
         # two blocks of SCIP characters with their sums ('0' + 6 bits of the byte sum)
         block = b"0" * 64
         line = block + bytes(((sum(block) & 0x3F) + 0x30,))
-        kernel.scan_blocks(np.frombuffer(line + b"\n" + line, np.uint8), 3)
+        kernel.scan_blocks(line + b"\n" + line, 3)
 
 
 @functools.cache

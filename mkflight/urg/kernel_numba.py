@@ -21,7 +21,6 @@ from numba import njit
 from mkflight.urg.replies import BLOCKS_MALFORMED, BLOCKS_OK, BLOCKS_SUM
 
 IntArray = npt.NDArray[np.int64]
-ByteArray = npt.NDArray[np.uint8]
 
 # (these and the verdicts are frozen into numba's on-disk cache: change them, touch this file)
 _LF = 0x0A
@@ -30,7 +29,7 @@ _FULL = 65  # a full block: 64 characters and its sum (§2.5)
 
 
 @njit(cache=True, error_model="numpy")
-def scan_blocks(lines: ByteArray, chars: int) -> tuple[int, IntArray]:
+def scan_blocks(lines: bytes, chars: int) -> tuple[int, IntArray]:
     """The verdict on a scan's data blocks and their values (mm) when it is ``BLOCKS_OK``.
 
     ``lines`` holds the blocks (each its characters then its sum character) joined by LF,
@@ -41,7 +40,7 @@ def scan_blocks(lines: ByteArray, chars: int) -> tuple[int, IntArray]:
     number of values, each character within ``'0'..'o'``.
     """
     none = np.empty(0, dtype=np.int64)
-    n = lines.shape[0]
+    n = len(lines)
     if n == 0:
         return BLOCKS_MALFORMED, none  # no block: no value (the reference finds 0 of them)
     last_start = 0

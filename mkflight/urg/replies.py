@@ -29,7 +29,6 @@ from functools import lru_cache
 from typing import Final
 
 import numpy as np
-import numpy.typing as npt
 
 from mkflight.urg.codec import (
     BLOCK_CHARS,
@@ -58,9 +57,9 @@ _LF: Final = 0x0A
 BLOCKS_OK: Final = 0
 BLOCKS_SUM: Final = 1  # a block's sum is wrong: the reply is dropped as a sum error
 BLOCKS_MALFORMED: Final = 2  # a block of a wrong size, a bad character, a cut value
-#: A scan's data blocks (joined by LF, as uint8) and the characters of a value -> the
-#: verdict (``BLOCKS_*``) and the values.
-BlockDecoder = Callable[[npt.NDArray[np.uint8], int], tuple[int, IntArray]]
+#: A scan's data blocks (joined by LF) and the characters of a value -> the verdict
+#: (``BLOCKS_*``) and the values.
+BlockDecoder = Callable[[bytes, int], tuple[int, IntArray]]
 #: A byte sum modulo 256 to its sum character: its low 6 bits from '0' (§2.3).
 _SUM_CHARS: Final = bytes(((s & 0x3F) + CHAR_OFFSET) for s in range(256))
 _SUM: Final = "sum"
@@ -409,7 +408,7 @@ def _parse_scan(
         return _SUM
     values: IntArray | None
     if decode_blocks is not None:
-        verdict, values = decode_blocks(np.frombuffer(b"\n".join(body[1:]), np.uint8), chars)
+        verdict, values = decode_blocks(b"\n".join(body[1:]), chars)
         if verdict != BLOCKS_OK:
             return _SUM if verdict == BLOCKS_SUM else _MALFORMED
         values.flags.writeable = False
