@@ -21,6 +21,11 @@ Per scan:
 * **Pose** from :class:`~mkflight.scanmatch.keyframe.KeyframeMatcher` (PL-ICP against
   keyframes), ``dt_s`` from consecutive scans' ``t_ns``.
 
+With the matcher's compiled kernel (``scanmatch.kernel``, numba) the height and the points
+are one call (:func:`~mkflight.scanmatch.kernel_scan.scan_geometry`) and the pose another
+(``track_step``); :func:`~mkflight.urg.hat.hat_height` and :func:`level_points` are the
+reference and the path without it, with the same numbers to the last bit.
+
 Frames: the matcher works in standard 2-D math (x forward, y LEFT, θ counter-clockwise);
 mkflight's world frame W (SPEC §1) is x forward, y RIGHT, ψ clockwise. The two differ by a
 mirror of the y axis, which maps rigid motions to rigid motions, so the conversion at this
