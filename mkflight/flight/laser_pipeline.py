@@ -21,6 +21,11 @@ Per scan:
 * **Pose** from :class:`~mkflight.scanmatch.keyframe.KeyframeMatcher` (PL-ICP against
   keyframes), ``dt_s`` from consecutive scans' ``t_ns``.
 
+With the matcher's compiled kernel (``scanmatch.kernel``, numba) the height and the points
+are one call (:func:`~mkflight.scanmatch.kernel_scan.scan_geometry`) and the pose another
+(``track_step``); :func:`~mkflight.urg.hat.hat_height` and :func:`level_points` are the
+reference and the path without it, with the same numbers to the last bit.
+
 Frames: the matcher works in standard 2-D math (x forward, y LEFT, θ counter-clockwise);
 mkflight's world frame W (SPEC §1) is x forward, y RIGHT, ψ clockwise. The two differ by a
 mirror of the y axis, which maps rigid motions to rigid motions, so the conversion at this
@@ -46,8 +51,38 @@ from mkflight.conversions import NS_PER_S
 from mkflight.msgs import Pose2D, Scan
 from mkflight.scanmatch.geometry import FloatArray, Pose, wrap_angle
 from mkflight.scanmatch.icp import MatchResult
+from mkflight.scanmatch.kernel_numpy import (
+    G_FLOOR_FRACTION,
+    G_FLOOR_OFFSET_M,
+    G_HAT_INLIER_GATE_M,
+    G_HAT_MAX_RANGE_M,
+    G_HAT_MAX_SPREAD_M,
+    G_HAT_MIN_BEAMS,
+    G_HAT_MIN_HEIGHT_M,
+    G_HAT_MIN_INLIER_FRACTION,
+    G_HAT_MIN_RANGE_M,
+    G_HAT_OFFSET_M,
+    G_MAD_TO_SIGMA,
+    G_MAX_RANGE_M,
+    G_MIN_RANGE_M,
+    H_CODE,
+    H_HEIGHT_M,
+    H_SPREAD_M,
+    H_USED_BEAMS,
+    H_VALID_BEAMS,
+    N_GEOMETRY_PARAMS,
+    N_HAT_OUT,
+)
+from mkflight.scanmatch.kernels import load_kernel
 from mkflight.scanmatch.keyframe import KeyframeMatcher
-from mkflight.urg.hat import HatSettings, hat_height
+from mkflight.urg.hat import (
+    MAD_TO_SIGMA,
+    TILT_TOO_LARGE,
+    HatSettings,
+    hat_height,
+    hat_result,
+    min_valid_beams,
+)
 from mkflight.urg.units import URG_04LX
 
 #: The URG-04LX's front step and step angle (SPEC §2: step 384 ahead, 2π/1024 per step).
@@ -217,6 +252,31 @@ def _within(first_step: int, n: int, bounds: tuple[int, int]) -> slice:
     return slice(start, max(min(bounds[1] - first_step + 1, n), start))
 
 
+def geometry_params(hat: HatSettings, laser: LaserConfig) -> FloatArray:
+    """The ``params`` of the compiled :func:`~mkflight.scanmatch.kernel_scan.scan_geometry`."""
+    params = np.empty(N_GEOMETRY_PARAMS)
+    params[G_HAT_MIN_RANGE_M] = hat.min_range_m
+    params[G_HAT_MAX_RANGE_M] = hat.max_range_m
+    params[G_HAT_MIN_BEAMS] = hat.min_beams
+    params[G_HAT_MIN_INLIER_FRACTION] = hat.min_inlier_fraction
+    params[G_HAT_INLIER_GATE_M] = hat.inlier_gate_m
+    params[G_HAT_MAX_SPREAD_M] = hat.max_spread_m
+    params[G_HAT_MIN_HEIGHT_M] = hat.min_height_m
+    params[G_HAT_OFFSET_M] = hat.offset_m
+    params[G_FLOOR_OFFSET_M] = laser.hat_offset_m
+    params[G_FLOOR_FRACTION] = FLOOR_FRACTION
+    params[G_MIN_RANGE_M] = laser.min_range_m
+    params[G_MAX_RANGE_M] = laser.max_range_m
+    params[G_MAD_TO_SIGMA] = MAD_TO_SIGMA
+    return params
+
+
+def _plain_array(ranges: FloatArray) -> bool:
+    """A 1-D array the compiled call takes as it is typed (else numba would compile anew)."""
+    flags = ranges.flags
+    return bool(flags.c_contiguous and flags.writeable)
+
+
 def _usable_prior(motion_prior: Pose | None) -> Pose | None:
     """The prior in the matcher's frame, or None when it cannot be a motion between scans."""
     if motion_prior is None:
@@ -243,6 +303,11 @@ class LaserPipeline:
         self._prev_t_ns: int | None = None
         self._have_reference = False
         self._last_layout: tuple[tuple[int, int], ScanLayout] | None = None
+        #: the matcher's kernel (``scanmatch.kernel``): its compiled functions, if any
+        self.kernel = load_kernel(cfg.scanmatch.kernel)
+        self._geometry = self.kernel.scan_geometry
+        self._geometry_params = geometry_params(self._hat, self._laser)
+        self._hat_out = np.zeros(N_HAT_OUT)
 
     def _new_matcher(self) -> KeyframeMatcher:
         return KeyframeMatcher(self._scanmatch)
@@ -289,18 +354,12 @@ class LaserPipeline:
         if not (math.isfinite(pitch_rad) and math.isfinite(roll_rad)):
             # the FC's attitude is garbage: the vehicle flies level (as commanded then)
             pitch_rad = roll_rad = 0.0
-        height_m, height_reason = self._height(ranges, layout, pitch_rad, roll_rad, bad_scan)
-        floor = None if height_m is None else height_m + self._laser.hat_offset_m
-        points = level_points(
-            ranges[layout.scan],
-            layout.scan_steps,
-            pitch_rad,
-            roll_rad,
-            min_range_m=self._laser.min_range_m,
-            max_range_m=self._laser.max_range_m,
-            floor_depth_m=floor,
-            directions=layout.directions,
-        )
+        if self._geometry is not None and not bad_scan and _plain_array(ranges):
+            height_m, height_reason, points = self._compiled(ranges, layout, pitch_rad, roll_rad)
+        else:
+            height_m, height_reason, points = self._geometry_numpy(
+                ranges, layout, pitch_rad, roll_rad, bad_scan
+            )
         dt_s = self._scan_interval_s(scan.t_ns)
         update = self._matcher.update(points, motion_prior=_usable_prior(motion_prior), dt_s=dt_s)
         result = update.result
@@ -340,6 +399,80 @@ class LaserPipeline:
         if self._last_layout is None or self._last_layout[0] != (first_step, n):
             self._last_layout = ((first_step, n), ScanLayout.build(first_step, n, self._laser))
         return self._last_layout[1]
+
+    def _geometry_numpy(
+        self,
+        ranges: FloatArray,
+        layout: ScanLayout,
+        pitch_rad: float,
+        roll_rad: float,
+        bad_scan: str = "",
+    ) -> tuple[float | None, str, FloatArray]:
+        """The hat height (or None) and why not, and the level points, in numpy."""
+        height_m, height_reason = self._height(ranges, layout, pitch_rad, roll_rad, bad_scan)
+        floor = None if height_m is None else height_m + self._laser.hat_offset_m
+        points = level_points(
+            ranges[layout.scan],
+            layout.scan_steps,
+            pitch_rad,
+            roll_rad,
+            min_range_m=self._laser.min_range_m,
+            max_range_m=self._laser.max_range_m,
+            floor_depth_m=floor,
+            directions=layout.directions,
+        )
+        return height_m, height_reason, points
+
+    def _compiled(
+        self, ranges: FloatArray, layout: ScanLayout, pitch_rad: float, roll_rad: float
+    ) -> tuple[float | None, str, FloatArray]:
+        """:meth:`_geometry_numpy` in one compiled call: the same numbers, the same reasons.
+
+        The hat's check of the tilt and its reasons stay here (:func:`hat_result`). The
+        attitude is finite (:meth:`process` levels an unknown one).
+        """
+        hat, hat_settings = layout.hat, self._hat
+        n_hat = hat.stop - hat.start
+        skip = ""
+        if n_hat == 0:
+            skip = f"no hat steps {self._laser.hat_steps} in the scan"
+        elif (
+            abs(pitch_rad) > hat_settings.max_tilt_rad or abs(roll_rad) > hat_settings.max_tilt_rad
+        ):
+            skip = TILT_TOO_LARGE
+        cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
+        cr, sr = math.cos(roll_rad), math.sin(roll_rad)
+        cb, sb = layout.directions
+        out = self._hat_out
+        points = self._geometry(  # type: ignore[misc]  # checked not None by the caller
+            ranges,
+            hat.start,
+            hat.start if skip else hat.stop,
+            min_valid_beams(hat_settings, n_hat),
+            layout.scan.start,
+            layout.scan.stop,
+            cb,
+            sb,
+            cp,
+            sp,
+            cr,
+            sr,
+            cp * cr,
+            self._geometry_params,
+            out,
+        )
+        if skip:
+            return None, skip, points
+        o = out.tolist()
+        result = hat_result(
+            int(o[H_CODE]),
+            n_hat,
+            int(o[H_VALID_BEAMS]),
+            int(o[H_USED_BEAMS]),
+            o[H_SPREAD_M],
+            o[H_HEIGHT_M],
+        )
+        return (result.height_m if result.valid else None), result.reason, points
 
     def _height(
         self,

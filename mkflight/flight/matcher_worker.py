@@ -48,6 +48,7 @@ from mkflight.config import Config
 from mkflight.flight.laser_pipeline import LaserPipeline, LaserResult
 from mkflight.msgs import Scan
 from mkflight.scanmatch.geometry import FloatArray, Pose
+from mkflight.urg.replies import BlockDecoder
 
 if TYPE_CHECKING:
     from multiprocessing.process import BaseProcess
@@ -246,6 +247,15 @@ class MatcherWorker:
         :meth:`process` is this class's own (a subclass that changes it is awaited).
         """
         return self._pipeline is not None and type(self).process is MatcherWorker.process
+
+    @property
+    def scan_blocks(self) -> BlockDecoder | None:
+        """The compiled decoder of a scan's SCIP blocks, when the pipeline runs here with one.
+
+        (:mod:`mkflight.urg.kernel_numba`, loaded with the matcher's kernel: the URG
+        driver of the same process may decode with it.)
+        """
+        return None if self._pipeline is None else self._pipeline.kernel.scan_blocks
 
     def process_now(
         self,

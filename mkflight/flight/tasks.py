@@ -123,6 +123,8 @@ async def laser_task(
     skip a scan; ``on_scan`` is told of each scan as it comes (the observer's).
     """
     timeout_s = max(1.0, stale_s * 3)
+    # A matcher in this process has its compiled kernel loaded: the driver decodes with it.
+    driver.decode_blocks_with(worker.scan_blocks)
 
     def match_now(scan: Scan) -> None:
         """One scan through the inline matcher, in the callback that read it."""

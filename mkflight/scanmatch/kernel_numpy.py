@@ -125,6 +125,36 @@ T_NEW_KEYFRAME: Final = 14
 T_HANDLED: Final = 15
 N_TRACK_OUT: Final = 16
 
+# The compiled ``kernel_scan.scan_geometry`` (a URG scan's hat height and level points in
+# one call; its numpy reference is mkflight.urg.hat.hat_height and
+# mkflight.flight.laser_pipeline.level_points). Indices into its ``params`` array (constant
+# for a pipeline: the hat's thresholds, the range window, and the constants of those two
+# modules, passed at every call for the same reason as CONSTANT_PARAMS):
+G_HAT_MIN_RANGE_M: Final = 0
+G_HAT_MAX_RANGE_M: Final = 1
+G_HAT_MIN_BEAMS: Final = 2
+G_HAT_MIN_INLIER_FRACTION: Final = 3
+G_HAT_INLIER_GATE_M: Final = 4
+G_HAT_MAX_SPREAD_M: Final = 5
+G_HAT_MIN_HEIGHT_M: Final = 6
+G_HAT_OFFSET_M: Final = 7  # the hat's eq 26 offset
+G_FLOOR_OFFSET_M: Final = 8  # laser.hat_offset_m: height + it = the sensor above the floor
+G_FLOOR_FRACTION: Final = 9
+G_MIN_RANGE_M: Final = 10  # the scan beams' valid range window
+G_MAX_RANGE_M: Final = 11
+G_MAD_TO_SIGMA: Final = 12
+N_GEOMETRY_PARAMS: Final = 13
+# Indices into its ``hat_out`` array: the outcome (H_CODE: HAT_SKIPPED when no height was
+# asked for, else one of mkflight.urg.hat's HAT_* outcomes), the valid and the used
+# beams, the spread and the height.
+H_CODE: Final = 0
+H_VALID_BEAMS: Final = 1
+H_USED_BEAMS: Final = 2
+H_SPREAD_M: Final = 3
+H_HEIGHT_M: Final = 4
+N_HAT_OUT: Final = 5
+HAT_SKIPPED: Final = -1
+
 
 def wrap_angle(angle_rad: float) -> float:
     """Wrap an angle to [-pi, pi)."""

@@ -9,6 +9,7 @@ poses to rounding (tested), so the choice is one of speed only.
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
@@ -20,6 +21,8 @@ from mkflight.errors import ConfigError
 from mkflight.scanmatch import kernel_numpy
 from mkflight.scanmatch.kernel_numpy import (
     CONSTANT_PARAMS,
+    N_GEOMETRY_PARAMS,
+    N_HAT_OUT,
     N_PARAMS,
     N_STATE,
     N_TRACK_OUT,
@@ -28,6 +31,7 @@ from mkflight.scanmatch.kernel_numpy import (
     FloatArray,
     IntArray,
 )
+from mkflight.urg.replies import BlockDecoder
 
 KernelName = Literal["auto", "numba", "numpy"]
 #: ``kernel_numba.track_step``'s signature: points, keyframe rows, state, params, line
@@ -45,6 +49,29 @@ TrackStep = Callable[
     ],
     FloatArray,
 ]
+#: ``kernel_scan.scan_geometry``'s signature: ranges, hat start, stop and valid beams
+#: needed, scan start and stop, the scan beams' cosines and sines, cos and sin of pitch
+#: and roll, cos pitch * cos roll, parameters, the hat's output -> the level points.
+ScanGeometry = Callable[
+    [
+        FloatArray,
+        int,
+        int,
+        int,
+        int,
+        int,
+        FloatArray,
+        FloatArray,
+        float,
+        float,
+        float,
+        float,
+        float,
+        FloatArray,
+        FloatArray,
+    ],
+    FloatArray,
+]
 log = structlog.get_logger("mkflight.scanmatch")
 
 
@@ -53,8 +80,10 @@ class Kernel:
     """One implementation: its name and its functions (as in :mod:`kernel_numpy`).
 
     ``track_step``: a whole scan of the keyframe matcher in one call; ``beam_points``: a
-    log's beams to points in one call (compiled kernel only; None: the callers take their
-    Python paths, with the same results).
+    log's beams to points in one call; ``scan_geometry``: a URG scan's hat height and level
+    points in one call (:mod:`kernel_scan`); ``scan_blocks``: a URG scan's SCIP data
+    blocks checked and decoded in one call (:mod:`mkflight.urg.kernel_numba`) (compiled
+    kernel only; None: the callers take their Python paths, with the same results).
     """
 
     name: Literal["numba", "numpy"]
@@ -62,6 +91,8 @@ class Kernel:
     icp_solve: Callable[[FloatArray, FloatArray, FloatArray, FloatArray], FloatArray]
     track_step: TrackStep | None = None
     beam_points: Callable[[FloatArray, BoolArray, FloatArray], FloatArray] | None = None
+    scan_geometry: ScanGeometry | None = None
+    scan_blocks: BlockDecoder | None = None
 
 
 NUMPY = Kernel("numpy", kernel_numpy.reference_rows, kernel_numpy.icp_solve)
@@ -91,13 +122,31 @@ def warm_up(kernel: Kernel) -> None:
         state, out = np.zeros(N_STATE), np.zeros(N_TRACK_OUT)
         windows = np.array([1, 2, 4], dtype=np.int64)
         kernel.track_step(pts, ref, state, track, windows, out, (0.01, 0.0, 0.0), 0.1)
+    if kernel.scan_geometry is not None:
+        # a floor 0.6 m down under 20 hat beams, then the square room's walls
+        ranges = np.concatenate((np.linspace(0.64, 0.66, 20), np.hypot(x, y)))
+        angles = np.arctan2(y, x)
+        geometry = np.array([0.02, 4.0, 8, 0.5, 0.03, 0.05, -0.1, 0.05, 0.05, 0.8, 0.02, 5.6, 1.5])
+        assert geometry.shape == (N_GEOMETRY_PARAMS,)
+        hat_out = np.zeros(N_HAT_OUT)
+        c, s = math.cos(0.01), math.sin(0.01)
+        cos_b, sin_b = np.cos(angles), np.sin(angles)
+        kernel.scan_geometry(
+            ranges, 0, 20, 8, 20, 100, cos_b, sin_b, c, s, c, s, c * c, geometry, hat_out
+        )
+    if kernel.scan_blocks is not None:
+        # two blocks of SCIP characters with their sums ('0' + 6 bits of the byte sum)
+        block = b"0" * 64
+        line = block + bytes(((sum(block) & 0x3F) + 0x30,))
+        kernel.scan_blocks(line + b"\n" + line, 3)
 
 
 @functools.cache
 def _compiled() -> Kernel | None:
     """The numba kernel, compiled and run once; None when numba is missing or fails."""
     try:
-        from mkflight.scanmatch import kernel_numba
+        from mkflight.scanmatch import kernel_numba, kernel_scan
+        from mkflight.urg import kernel_numba as urg_kernel
 
         kernel = Kernel(
             "numba",
@@ -105,6 +154,8 @@ def _compiled() -> Kernel | None:
             kernel_numba.icp_solve,
             kernel_numba.track_step,
             kernel_numba.beam_points,
+            kernel_scan.scan_geometry,
+            urg_kernel.scan_blocks,
         )
         warm_up(kernel)
     except Exception as err:  # not installed, no cache directory, a compiler error

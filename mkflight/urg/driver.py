@@ -42,7 +42,7 @@ from mkflight.io.stream import ByteStream, Opener, PushStream, Tap, resolve_wait
 from mkflight.msgs import Scan
 from mkflight.urg.codec import md_command, scip2_command, simple_command, tm_command
 from mkflight.urg.driver_types import UrgInfo, UrgStats, streamed_steps
-from mkflight.urg.replies import InfoReply, Reply, ReplyParser, ScanReply
+from mkflight.urg.replies import BlockDecoder, InfoReply, Reply, ReplyParser, ScanReply
 from mkflight.urg.stamping import ScanStamper
 from mkflight.urg.units import URG_04LX, SensorParams, parse_params
 
@@ -115,6 +115,10 @@ class UrgDriver:
             self._reader = asyncio.get_running_loop().create_task(
                 self._read_loop(), name=f"urg-reader {self.port}"
             )
+
+    def decode_blocks_with(self, decoder: BlockDecoder | None) -> None:
+        """Decode scans' data blocks with ``decoder`` (see :class:`ReplyParser`; None: numpy)."""
+        self._parser.decode_blocks = decoder
 
     async def connect(self) -> UrgInfo:
         """The start-up sequence of ``scip2.md`` §6 (without the stream).

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
@@ -28,6 +29,17 @@ import numpy.typing as npt
 from mkflight.config import LaserConfig
 
 MAD_TO_SIGMA = 1.4826  # for Gaussian noise, sigma = 1.4826 * MAD
+
+# The outcomes of the estimate past its attitude checks, as :func:`hat_result` takes them
+# (the compiled twin of :func:`hat_height`, mkflight.scanmatch.kernel_scan, hands its
+# outcome over as one of these numbers; its on-disk cache holds them: change them, and
+# touch kernel_scan.py).
+HAT_VALID: Final = 0
+TILT_TOO_LARGE: Final = "tilt too large for the hat"
+HAT_FEW_VALID: Final = 1
+HAT_DISAGREE: Final = 2
+HAT_SPREAD: Final = 3
+HAT_IMPLAUSIBLE: Final = 4
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,7 +104,7 @@ def hat_height(
     if not (math.isfinite(pitch_rad) and math.isfinite(roll_rad)):
         return _none("attitude unknown")
     if abs(pitch_rad) > s.max_tilt_rad or abs(roll_rad) > s.max_tilt_rad:
-        return _none("tilt too large for the hat")
+        return _none(TILT_TOO_LARGE)
     r = np.asarray(ranges_m, dtype=np.float64).ravel()
     low, high = s.min_range_m, s.max_range_m
     ok = (r >= low) & (r <= high)
@@ -100,8 +112,8 @@ def hat_height(
         ok &= np.isfinite(r)  # finite bounds already leave out NaN and inf
     good = r[ok]
     n_valid = good.size
-    if n_valid < max(s.min_beams, math.ceil(s.min_valid_fraction * r.size)):
-        return _none(f"{n_valid} of {r.size} hat beams valid", n_valid)
+    if n_valid < min_valid_beams(s, r.size):
+        return hat_result(HAT_FEW_VALID, r.size, n_valid)
     good.sort()
     median = _median(good)
     deviation = np.abs(good - median)
@@ -113,7 +125,7 @@ def hat_height(
     inliers = good if ordered[-1] <= gate else good[deviation <= gate]  # sorted
     n_used = inliers.size
     if n_used < max(s.min_beams, math.ceil(s.min_inlier_fraction * n_valid)):
-        return _none(f"hat beams disagree ({n_used} of {n_valid} consistent)", n_valid, n_used)
+        return hat_result(HAT_DISAGREE, r.size, n_valid, n_used)
     if inliers is good:
         inlier_median, inlier_mad = median, mad
     else:
@@ -121,11 +133,35 @@ def hat_height(
         inlier_mad = _median(np.sort(np.abs(inliers - inlier_median)))
     spread = MAD_TO_SIGMA * inlier_mad
     if spread > s.max_spread_m:
-        return _none(f"hat beams spread {spread:.3f} m", n_valid, n_used, spread)
+        return hat_result(HAT_SPREAD, r.size, n_valid, n_used, spread)
     height = math.cos(pitch_rad) * math.cos(roll_rad) * inlier_median - s.offset_m
-    if height < s.min_height_m:
-        return _none(f"implausible height {height:.3f} m", n_valid, n_used, spread)
-    return HatHeight(height, True, n_valid, n_used, spread)
+    outcome = HAT_IMPLAUSIBLE if height < s.min_height_m else HAT_VALID
+    return hat_result(outcome, r.size, n_valid, n_used, spread, height)
+
+
+def min_valid_beams(settings: HatSettings, n_beams: int) -> int:
+    """How many of ``n_beams`` hat beams must be valid for a height."""
+    return max(settings.min_beams, math.ceil(settings.min_valid_fraction * n_beams))
+
+
+def hat_result(
+    outcome: int,
+    n_beams: int,
+    n_valid: int,
+    n_used: int = 0,
+    spread_m: float = math.nan,
+    height_m: float = math.nan,
+) -> HatHeight:
+    """The :class:`HatHeight` of outcome ``HAT_*`` of ``n_beams`` hat beams, with its reason."""
+    if outcome == HAT_VALID:
+        return HatHeight(height_m, True, n_valid, n_used, spread_m)
+    if outcome == HAT_FEW_VALID:
+        return _none(f"{n_valid} of {n_beams} hat beams valid", n_valid)
+    if outcome == HAT_DISAGREE:
+        return _none(f"hat beams disagree ({n_used} of {n_valid} consistent)", n_valid, n_used)
+    if outcome == HAT_SPREAD:
+        return _none(f"hat beams spread {spread_m:.3f} m", n_valid, n_used, spread_m)
+    return _none(f"implausible height {height_m:.3f} m", n_valid, n_used, spread_m)
 
 
 def _median(ordered: npt.NDArray[np.float64]) -> float:

@@ -23,6 +23,7 @@ LF included) + ``discarded_bytes`` + :attr:`ReplyParser.buffered`.
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Final
@@ -52,6 +53,13 @@ _STATUS_RE: Final = re.compile(rb"[0-9A-Z]{2}")
 _SCAN_ECHO_RE: Final = re.compile(r"(G[DS]|M[DS])(\d{4})(\d{4})(\d{2})(?:(\d)(\d{2}))?(;.*)?")
 
 _LF: Final = 0x0A
+#: The verdicts of a scan's blocks' decoder (:func:`mkflight.urg.kernel_numba.scan_blocks`).
+BLOCKS_OK: Final = 0
+BLOCKS_SUM: Final = 1  # a block's sum is wrong: the reply is dropped as a sum error
+BLOCKS_MALFORMED: Final = 2  # a block of a wrong size, a bad character, a cut value
+#: A scan's data blocks (joined by LF) and the characters of a value -> the verdict
+#: (``BLOCKS_*``) and the values.
+BlockDecoder = Callable[[bytes, int], tuple[int, IntArray]]
 #: A byte sum modulo 256 to its sum character: its low 6 bits from '0' (§2.3).
 _SUM_CHARS: Final = bytes(((s & 0x3F) + CHAR_OFFSET) for s in range(256))
 _SUM: Final = "sum"
@@ -196,8 +204,11 @@ class ParserStats:
 class ReplyParser:
     """Incremental client decoder of SCIP 2.0 replies (see the module docstring)."""
 
-    def __init__(self) -> None:
+    def __init__(self, decode_blocks: BlockDecoder | None = None) -> None:
         self.stats = ParserStats()
+        #: the compiled :func:`~mkflight.urg.kernel_numba.scan_blocks` for a scan's data
+        #: blocks (None: :func:`_scan_data` and :func:`decode_array`, with the same outcome)
+        self.decode_blocks = decode_blocks
         self._partial = bytearray()  # an unfinished line
         self._lines: list[bytes] = []  # the complete lines of the reply being collected
         self._skipping = False  # inside an over-long line: drop bytes until LF
@@ -305,7 +316,7 @@ class ReplyParser:
         for i in range(len(lines) - 1):
             if not _ECHO_RE.fullmatch(lines[i]):
                 continue
-            result = _parse(lines, i)
+            result = _parse(lines, i, self.decode_blocks)
             if isinstance(result, Reply):
                 stats.garbage_lines += i
                 stats.discarded_bytes += sum(len(line) + 1 for line in lines[:i])
@@ -326,8 +337,8 @@ class ReplyParser:
         return None
 
 
-def _parse(lines: list[bytes], i: int) -> Reply | str | None:
-    """Parse the reply whose echo is ``lines[i]``.
+def _parse(lines: list[bytes], i: int, decode_blocks: BlockDecoder | None) -> Reply | str | None:
+    """Parse the reply whose echo is ``lines[i]`` (``decode_blocks``: see :class:`ReplyParser`).
 
     Returns:
         The reply; ``"sum"`` or ``"malformed"`` if it is a reply but a bad one; None if
@@ -348,7 +359,7 @@ def _parse(lines: list[bytes], i: int) -> Reply | str | None:
     if chars is not None:
         expects_data = status == ("00" if command[0] == "G" else "99")
         if body:
-            return _parse_scan(echo, status, body, chars)
+            return _parse_scan(echo, status, body, chars, decode_blocks)
         return _MALFORMED if expects_data else Reply(echo, status)
     if not body:
         return Reply(echo, status)
@@ -386,20 +397,32 @@ def _parse_info(echo: str, status: str, body: list[bytes]) -> InfoReply | str:
     return InfoReply(echo, status, info)
 
 
-def _parse_scan(echo: str, status: str, body: list[bytes], chars: int) -> ScanReply | str:
+def _parse_scan(
+    echo: str, status: str, body: list[bytes], chars: int, decode_blocks: BlockDecoder | None
+) -> ScanReply | str:
     """Timestamp line, then data blocks joined before splitting the values (§2.5, §3.2)."""
     stamp = body[0]
     if len(stamp) != 5:
         return _MALFORMED
     if sum_char(stamp[:4]) != stamp[4]:
         return _SUM
-    joined = _scan_data(body[1:])
-    if isinstance(joined, str):
-        return joined
-    fields = _scan_echo(echo)
-    if fields is None:
-        return _MALFORMED
-    values = decode_array(joined, chars)
+    values: IntArray | None
+    if decode_blocks is not None:
+        verdict, values = decode_blocks(b"\n".join(body[1:]), chars)
+        if verdict != BLOCKS_OK:
+            return _SUM if verdict == BLOCKS_SUM else _MALFORMED
+        values.flags.writeable = False
+        fields = _scan_echo(echo)
+        if fields is None:
+            return _MALFORMED
+    else:
+        joined = _scan_data(body[1:])
+        if isinstance(joined, str):
+            return joined
+        fields = _scan_echo(echo)
+        if fields is None:
+            return _MALFORMED
+        values = decode_array(joined, chars)
     try:
         timestamp_ms = decode_value(stamp[:4])
     except ValueError:

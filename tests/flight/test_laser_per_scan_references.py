@@ -15,11 +15,11 @@ from itertools import pairwise
 
 import numpy as np
 import numpy.typing as npt
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from mkflight.config import Config
+from mkflight.config import Config, ScanmatchConfig
 from mkflight.flight.laser_inbox import ATTITUDE_HISTORY, AttitudeHistory
 from mkflight.flight.laser_pipeline import (
     FLOOR_FRACTION,
@@ -27,10 +27,19 @@ from mkflight.flight.laser_pipeline import (
     STEP_RAD,
     LaserPipeline,
     ScanLayout,
+    geometry_params,
     level_points,
 )
 from mkflight.msgs import Scan
-from mkflight.urg.hat import MAD_TO_SIGMA, HatHeight, HatSettings, hat_height
+from mkflight.scanmatch.kernel_numpy import N_HAT_OUT
+from mkflight.urg.hat import (
+    MAD_TO_SIGMA,
+    HatHeight,
+    HatSettings,
+    hat_height,
+    hat_result,
+    min_valid_beams,
+)
 
 PROPERTY = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 F64 = npt.NDArray[np.float64]
@@ -244,3 +253,148 @@ def test_the_attitude_at_a_time_is_the_first_nearest_sample(
             assert same_floats(history.at(q), ref_attitude(samples, q))
     if not samples:
         assert all(math.isnan(v) for q in queries for v in history.at(q))
+
+
+# --- the compiled geometry against the numpy one ---------------------------------------------
+def same_geometry(got: tuple[float | None, str, F64], want: tuple[float | None, str, F64]) -> None:
+    """The same height (to the bit), reason and points (to the bit, in order)."""
+    assert (got[0] is None) == (want[0] is None)
+    if got[0] is not None and want[0] is not None:
+        assert got[0].hex() == want[0].hex()
+    assert got[1] == want[1]
+    assert got[2].shape == want[2].shape
+    assert got[2].tobytes() == want[2].tobytes()
+    assert got[2].flags.c_contiguous
+    assert got[2].flags.writeable  # what the compiled matcher takes without a new compile
+
+
+COMPILED = LaserPipeline(Config())
+hat_or_floor = st.floats(0.6, 0.62) | st.floats(0.3, 1.2) | st.sampled_from([math.nan, 0.01])
+
+
+@PROPERTY
+@given(
+    st.sampled_from([(44, 682), (44, 700), (100, 600), (150, 576), (0, 769), (30, 90)]),
+    st.data(),
+    tilts,
+    tilts,
+)
+def test_the_compiled_geometry_is_the_numpy_one_to_the_bit(
+    shape: tuple[int, int], data: st.DataObject, pitch: float, roll: float
+) -> None:
+    first, n = shape
+    hat = data.draw(hnp.arrays(np.float64, 128, elements=hat_or_floor))
+    rest = data.draw(hnp.arrays(np.float64, n, elements=ranges_m))
+    ranges = rest.copy()
+    ranges[: min(n, 128)] = np.where(np.arange(min(n, 128)) % 7 == 0, rest[:128], hat[:n])
+    if not (math.isfinite(pitch) and math.isfinite(roll)):
+        pitch = roll = 0.0  # process() levels an unknown attitude before either
+    layout = ScanLayout.build(first, n, Config().laser)
+    assert COMPILED._geometry is not None
+    same_geometry(
+        COMPILED._compiled(ranges, layout, pitch, roll),
+        COMPILED._geometry_numpy(ranges, layout, pitch, roll),
+    )
+
+
+def test_the_compiled_geometry_gives_every_hat_outcome_as_numpy_does() -> None:
+    """A valid floor (with outliers or without), too few beams, spread, too tilted.
+
+    (With the defaults, beams that disagree need fewer than ``min_beams`` within the MAD,
+    and an implausible height a range below ``laser.min_range_m``: neither happens.)
+    """
+    rng = np.random.default_rng(5)
+    layout = ScanLayout.build(44, 682, Config().laser)
+    walls = rng.uniform(0.5, 4.0, 682)
+    floors = {
+        "valid": 0.65 + rng.normal(0.0, 0.003, 84),
+        "few": np.where(np.arange(84) < 10, 0.65, np.nan),
+        "two floors": np.where(np.arange(84) % 2 == 0, 0.65, 1.5),
+        "spread": 0.65 + rng.normal(0.0, 0.05, 84),
+        "some outliers": np.where(np.arange(84) % 9 == 0, 0.9, 0.65 + rng.normal(0, 0.003, 84)),
+    }
+    reasons = set()
+    for floor in floors.values():
+        for pitch, roll in ((0.0, 0.0), (0.1, -0.05), (0.7, 0.0)):
+            ranges = walls.copy()
+            ranges[:84] = floor
+            got = COMPILED._compiled(ranges, layout, pitch, roll)
+            same_geometry(got, COMPILED._geometry_numpy(ranges, layout, pitch, roll))
+            reasons.add(" ".join(w for w in got[1].split(" ")[:3] if w.isalpha()))
+    assert reasons == {"", "of", "hat beams spread", "tilt too large"}
+
+
+def test_a_pipeline_on_the_numpy_kernel_has_no_compiled_geometry() -> None:
+    pipeline = LaserPipeline(Config(scanmatch=ScanmatchConfig(kernel="numpy")))
+    assert pipeline._geometry is None
+    ranges = np.full(682, 1.5)
+    ranges[:84] = 0.65
+    result = pipeline.process(Scan(t_ns=0, ranges_m=ranges, first_step=44, seq=1), 0.0, 0.0)
+    assert result.height_m is not None
+    assert result.height_m.hex() == (0.65 - 0.05).hex()
+
+
+@PROPERTY
+@given(
+    hat_beams,
+    st.floats(-0.5, 0.5),
+    st.floats(-0.5, 0.5),
+    st.floats(0.0, 0.3),
+    st.floats(0.0, 0.1),
+    st.floats(0.001, 0.2),
+    st.integers(1, 60),
+    st.floats(-0.1, 0.6),
+)
+def test_the_compiled_hat_is_hat_height_to_the_bit(
+    beams: F64,
+    pitch: float,
+    roll: float,
+    offset_m: float,
+    gate_m: float,
+    spread_m: float,
+    min_beams: int,
+    min_height_m: float,
+) -> None:
+    """Every outcome, with settings that reach them all (few beams, disagreement, too low).
+
+    (The pipeline asks for a hat height only with hat beams in the scan.)
+    """
+    assume(beams.size > 0)
+    s = HatSettings(
+        offset_m=offset_m,
+        min_range_m=0.02,
+        inlier_gate_m=gate_m,
+        max_spread_m=spread_m,
+        min_beams=min_beams,
+        min_height_m=min_height_m,
+    )
+    geometry = COMPILED._geometry
+    assert geometry is not None
+    out = np.zeros(N_HAT_OUT)
+    params = geometry_params(s, Config().laser)
+    cp, cr = math.cos(pitch), math.cos(roll)
+    no_beams = np.empty(0)
+    geometry(
+        beams,
+        0,
+        beams.size,
+        min_valid_beams(s, beams.size),
+        0,
+        0,
+        no_beams,
+        no_beams,
+        cp,
+        math.sin(pitch),
+        cr,
+        math.sin(roll),
+        cp * cr,
+        params,
+        out,
+    )
+    o = out.tolist()
+    got = hat_result(int(o[0]), beams.size, int(o[1]), int(o[2]), o[3], o[4])
+    want = hat_height(beams, pitch, roll, s)
+    fields = ("height_m", "valid", "beams_valid", "beams_used", "spread_m", "reason")
+    assert same_floats(
+        tuple(getattr(got, f) for f in fields), tuple(getattr(want, f) for f in fields)
+    )

@@ -15,11 +15,13 @@ import re
 from dataclasses import dataclass
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from mkflight.scanmatch.kernels import load_kernel
 from mkflight.urg.codec import decode_array, decode_values
-from mkflight.urg.replies import ReplyParser, ScanReply
+from mkflight.urg.replies import BlockDecoder, ReplyParser, ScanReply
 from mkflight.urg.stamping import ScanStamper
 from mkflight.urg.units import URG_04LX, SensorParams
 
@@ -172,8 +174,16 @@ def damaged_scans(draw: st.DrawFn) -> ScanText:
     return ScanText(echo, body, scan.chars)
 
 
-def feed(scan: ScanText) -> tuple[list[ScanReply], ReplyParser]:
-    parser = ReplyParser()
+#: The compiled decoder of a scan's blocks (mkflight.urg.kernel_numba): every property
+#: below holds with it as with the numpy path.
+COMPILED = load_kernel("numba").scan_blocks
+DECODERS = (None, COMPILED)
+
+
+def feed(
+    scan: ScanText, decode_blocks: BlockDecoder | None = None
+) -> tuple[list[ScanReply], ReplyParser]:
+    parser = ReplyParser(decode_blocks)
     status = b"99b" if scan.echo[0] == "M" else b"00P"
     lines = [scan.echo.encode(), status, *scan.body]
     replies = parser.feed(b"\n".join(lines) + b"\n\n")
@@ -184,8 +194,13 @@ def assert_decoded_alike(scan: ScanText) -> None:
     # only the echo line may start a reply: another candidate would test _finish, not decoding
     assume(not any(ECHO.fullmatch(line) for line in scan.body[:-1]))
     assume(all(len(line) <= 256 for line in scan.body) and len(scan.body) <= 62)
+    for decode_blocks in DECODERS:
+        assert_decoded_as_expected(scan, decode_blocks)
+
+
+def assert_decoded_as_expected(scan: ScanText, decode_blocks: BlockDecoder | None) -> None:
     expected = ref_parse_scan(scan.echo, scan.body, scan.chars)
-    replies, parser = feed(scan)
+    replies, parser = feed(scan, decode_blocks)
     if isinstance(expected, str):
         assert replies == []
         assert (parser.stats.sum_errors, parser.stats.malformed) == (
@@ -195,6 +210,7 @@ def assert_decoded_alike(scan: ScanText) -> None:
     (reply,) = replies
     assert reply.values == tuple(expected.values)
     assert reply.values_mm.dtype == np.int64
+    assert not reply.values_mm.flags.writeable
     assert reply.values_mm.tolist() == expected.values
     fields = (reply.timestamp_ms, reply.start_step, reply.end_step, reply.cluster, reply.remaining)
     assert fields == (
@@ -259,6 +275,22 @@ def test_ranges_are_the_reference_metres_bit_for_bit(
     ranges = ScanStamper(0.0).stamp(reply, 10**12, params, seq=1).ranges_m
     assert ranges.dtype == np.float64
     assert ranges.tobytes() == ref_ranges_m(values, params).tobytes()
+
+
+@pytest.mark.parametrize("decode_blocks", DECODERS, ids=("numpy", "compiled"))
+def test_blocks_whose_line_ends_fall_where_a_full_block_would_end_are_malformed(
+    decode_blocks: BlockDecoder | None,
+) -> None:
+    """Two short blocks of 30 and 34 bytes put an LF 65 bytes after the first one's start."""
+    data = b"".join(ref_encode(v, 3) for v in range(100, 140))
+    blocks = [data[:29], data[29:62], data[62:126], data[126:]]
+    body = [block + bytes((ref_sum(block),)) for block in blocks]
+    assert [len(line) for line in body[:2]] == [30, 34]
+    stamp = ref_encode(5, 4)
+    scan = ScanText("MD0044008301000", [stamp + bytes((ref_sum(stamp),)), *body], 3)
+    replies, parser = feed(scan, decode_blocks)
+    assert replies == []
+    assert (parser.stats.sum_errors, parser.stats.malformed) == (0, 1)
 
 
 def test_the_properties_see_every_outcome() -> None:
