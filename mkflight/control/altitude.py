@@ -45,7 +45,8 @@ BATTERY_RATIO_LIMITS = (0.8, 1.25)
 MIN_DERIVATIVE_DT_S = 0.05
 """The shortest span the inner loop's D term divides by (module docstring): about the
 FC's DebugOut period (~53 ms), so that only steps that came closer than the FC sends are
-affected."""
+affected (and the FC's early answer to a re-subscription: one step with a little less
+damping). The integral and everything else still take the step's own ``dt_s``."""
 
 
 class AltitudeState(msgspec.Struct, frozen=True, gc=False):
