@@ -6,7 +6,13 @@
    set-point, limited to ``+-control.max_climb_mps`` (integral within the same bound), plus
    an optional climb feed-forward from a ramping set-point.
 2. Vertical velocity PID (eq 23) on ``vz* - vz_up`` -> gas correction, integral clamped to
-   ``+-control.integral_limit_gas``, anti-windup against the gas saturation.
+   ``+-control.integral_limit_gas``, anti-windup against the gas saturation. Its D term
+   differentiates the speed estimate over at least :data:`MIN_DERIVATIVE_DT_S`: the FC
+   samples every ~53 ms, and a shorter gap between steps is a starved host catching up (a
+   sample that came late, then the next on time), not a shorter time for the speed to
+   change; over the arrival gap (13 ms after a 201 ms one) the estimate's correction
+   became a 53-count gas drop, gas 10 held by the FC through the next stall (a 1.5 m/s
+   fall, a 0.94 m/s touchdown under CPU starvation).
 3. Gas = feed-forward + PID, saturated to ``[0, control.gas_max]`` (§K: 0..130) and
    rounded: an unsigned byte that can never wrap.
 
@@ -35,6 +41,12 @@ MIN_TILT_FACTOR = 0.5
 
 BATTERY_RATIO_LIMITS = (0.8, 1.25)
 """Bounds of hover_voltage_v / battery_v in the feed-forward."""
+
+MIN_DERIVATIVE_DT_S = 0.05
+"""The shortest span the inner loop's D term divides by (module docstring): about the
+FC's DebugOut period (~53 ms), so that only steps that came closer than the FC sends are
+affected (and the FC's early answer to a re-subscription: one step with a little less
+damping). The integral and everything else still take the step's own ``dt_s``."""
 
 
 class AltitudeState(msgspec.Struct, frozen=True, gc=False):
@@ -156,12 +168,18 @@ def altitude_step(
         min_tilt_factor=min_tilt_factor,
         battery_ratio_limits=battery_ratio_limits,
     )
+    gains = climb_gains(control)
+    prev = state.climb.prev_measurement
+    rate = None  # the PID's own derivative over dt_s
+    if gains.kd != 0.0 and prev is not None and 0.0 < dt_s < MIN_DERIVATIVE_DT_S:
+        rate = (vz_up_mps - prev) / MIN_DERIVATIVE_DT_S
     inner = pid_update(
-        climb_gains(control),
+        gains,
         state.climb,
         error=climb_sp - vz_up_mps,
         measurement=vz_up_mps,
         dt_s=dt_s,
+        rate=rate,
         feedforward=gas_ff,
     )
     if not inner.valid:

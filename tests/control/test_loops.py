@@ -242,3 +242,47 @@ def test_gas_always_in_range(h_sp: float, h: float, vz: float, pitch: float, rol
 @pytest.mark.parametrize("battery", [0.0, -1.0, math.nan, math.inf])
 def test_altitude_bad_battery_is_none(battery: float) -> None:
     assert _alt(0.6, 0.6, battery=battery) is None
+
+
+def _gas_after(vz_before: float, vz_now: float, dt_s: float) -> float:
+    """The gas of a step ``dt_s`` after one that saw ``vz_before`` (height on its set-point)."""
+    first = altitude_step(
+        CTRL, AltitudeState(), height_sp_m=0.6, height_m=0.6, vz_up_mps=vz_before,
+        pitch_rad=0.0, roll_rad=0.0, battery_v=11.8, dt_s=0.05,
+    )  # fmt: skip
+    assert first is not None
+    res = altitude_step(
+        CTRL, first.state, height_sp_m=0.6, height_m=0.6, vz_up_mps=vz_now,
+        pitch_rad=0.0, roll_rad=0.0, battery_v=11.8, dt_s=dt_s,
+    )  # fmt: skip
+    assert res is not None
+    return res.gas_total
+
+
+def test_a_step_that_comes_early_after_a_late_one_does_not_spike_the_gas() -> None:
+    """A starved host (stall scenario, CI load): a DebugOut 201 ms late, the next 13 ms
+    after it, the speed estimate +0.176 -> +0.315 m/s between them. Over 13 ms the D term
+    made that -53 counts (gas 10, held by the FC through the next stall: a 0.94 m/s
+    touchdown); it differentiates over the FC's period at least, as for a step on time."""
+    on_time = _gas_after(0.176, 0.315, 0.053)
+    early = _gas_after(0.176, 0.315, 0.013)
+    assert early == pytest.approx(_gas_after(0.176, 0.315, 0.05), abs=1.0)
+    assert abs(early - on_time) < 3.0  # was 53 counts below: 0.139 * 5 / 0.013 - ...
+    assert early > 0.5 * CTRL.hover_gas
+
+
+def test_the_d_term_is_unchanged_for_steps_at_the_fc_period_or_later() -> None:
+    """Only steps closer than the FC sends are affected: 50 ms and more are the PID's own
+    derivative, float for float."""
+    state = AltitudeState(climb=PidState(integral=1.5, prev_measurement=-0.15))
+    for dt in (0.05, 0.053, 0.2):
+        res = altitude_step(
+            CTRL, state, height_sp_m=0.6, height_m=0.6, vz_up_mps=-0.2,
+            pitch_rad=0.0, roll_rad=0.0, battery_v=11.8, dt_s=dt,
+        )  # fmt: skip
+        assert res is not None
+        p = CTRL.kp_vz * (res.climb_sp_mps + 0.2)
+        d = -CTRL.kd_vz * (-0.2 - -0.15) / dt
+        integral = 1.5 + CTRL.ki_vz * (res.climb_sp_mps + 0.2) * dt
+        assert res.gas_saturation == 0
+        assert res.gas_total == CTRL.hover_gas + p + integral + d
