@@ -323,7 +323,7 @@ class DebugSubscription:
             if blind is not None and self._tx.engaged:
                 # nothing may keep the re-subscription below from going out
                 with contextlib.suppress(LinkError, CommandRangeError):
-                    self._tx.send_extern_control(blind)
+                    self._tx.send_extern_control(blind, confirm=True)
                     self._stats.blind_commands += 1
                     log.warning("mk_blind_hold", port=self._port, gas=blind.gas)
             self._tx.send("v", version_request())
