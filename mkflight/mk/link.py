@@ -443,6 +443,14 @@ class MkLink:
         """
         return self._tx.send_extern_control(command, confirm=confirm)
 
+    def send_sticks(self, nick: int, roll: int, yaw: int, gas: int, *, take_control: bool) -> int:
+        """:meth:`send_extern_control` of the command with these counts (the rest 0).
+
+        Without building an :class:`ExternControl` when they are ints within the limits:
+        the flight step's path, one a step. The same frame, checks and errors.
+        """
+        return self._tx.send_sticks(nick, roll, yaw, gas, take_control=take_control)
+
     def request_ppm(self) -> None:
         """Ask for the pilot's receiver channels ('p'); the answer lands in ``last_ppm``."""
         self._tx.send("p", ppm_request())

@@ -49,6 +49,7 @@ from mkflight.mk.messages import (
     EXTERN_CONFIG_OFFSET,
     EXTERN_FRAME_OFFSET,
     ExternControl,
+    pack_sticks,
 )
 from mkflight.mk.outbox import Outbox, Writer
 
@@ -173,20 +174,62 @@ class CommandSender:
         if takes_control and self._blocked is not None:
             msg = f"{self._port}: not taking control: {self._blocked}"
             raise LinkError(msg)
-        if not takes_control:
-            self._unnumbered = self._confirm_every  # the next that takes control: numbered
-            frame_no = self._frame_no = self._frame_no % 255 + 1
-        elif not confirm and self._unnumbered + 1 < self._confirm_every:
-            self._unnumbered += 1
-            frame_no = 0
-        else:
-            self._unnumbered = 0
-            frame_no = self._frame_no = self._frame_no % 255 + 1
-        data = _encode_extern(
+        frame_no = self._number(takes_control, confirm)
+        return self._send_extern(
             packed[:EXTERN_FRAME_OFFSET]
             + _FRAME_BYTES[frame_no]
-            + packed[EXTERN_FRAME_OFFSET + 1 :]
+            + packed[EXTERN_FRAME_OFFSET + 1 :],
+            frame_no,
+            takes_control,
         )
+
+    def send_sticks(self, nick: int, roll: int, yaw: int, gas: int, *, take_control: bool) -> int:
+        """:meth:`send_extern_control` of the command with these counts, without building it.
+
+        The command is ``ExternControl(nick=nick, roll=roll, yaw=yaw, gas=gas, config=1 if
+        take_control else 0)``; it is not built when the counts are ints within the limits
+        (the flight step's command, one a step). Anything else takes the checking path,
+        which names the field it refuses.
+        """
+        s = self._settings
+        m = s.stick_max_counts
+        if not (
+            type(nick) is int
+            and type(roll) is int
+            and type(yaw) is int
+            and type(gas) is int
+            and -m <= nick <= m
+            and -m <= roll <= m
+            and -m <= yaw <= m
+            and 0 <= gas <= s.gas_max
+        ):
+            command = ExternControl(
+                nick=nick, roll=roll, yaw=yaw, gas=gas, config=1 if take_control else 0
+            )
+            return self.send_extern_control(command)
+        self._check_writable()
+        if take_control and self._blocked is not None:
+            msg = f"{self._port}: not taking control: {self._blocked}"
+            raise LinkError(msg)
+        frame_no = self._number(take_control, False)
+        packed = pack_sticks(nick, roll, yaw, gas, frame_no, 1 if take_control else 0)
+        return self._send_extern(packed, frame_no, take_control)
+
+    def _number(self, takes_control: bool, confirm: bool) -> int:
+        """The Frame number of the next ExternControl (0: none; see send_extern_control)."""
+        if not takes_control:
+            self._unnumbered = self._confirm_every  # the next that takes control: numbered
+        elif not confirm and self._unnumbered + 1 < self._confirm_every:
+            self._unnumbered += 1
+            return 0
+        else:
+            self._unnumbered = 0
+        frame_no = self._frame_no = self._frame_no % 255 + 1
+        return frame_no
+
+    def _send_extern(self, packed: bytes, frame_no: int, takes_control: bool) -> int:
+        """The checked, numbered payload ``packed`` as a frame to the outbox."""
+        data = _encode_extern(packed)
         if self.pending_confirms:
             self._expire_confirms(self._clock.now_ns())
         self.send("b", data, frame_no)
