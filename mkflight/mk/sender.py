@@ -7,15 +7,16 @@ port, counts and taps) and reports each frame that left through :meth:`CommandSe
 
 A numbered ExternControl carries a Frame number 1..255, rolling over the numbered frames;
 its 'B' confirm gives the round-trip time. Not every frame is numbered
-(``mk.confirm_every``): a confirm is a frame the daemon wakes up for, ~0.1 ms of CPU here
-before any work. Of the commands that take control (Config bit 0), the first and then
-every ``confirm_every``-th is numbered; the others carry Frame 0, which asks the FC for no
-confirm (``mk-serial.md`` §5.3), and save that wake-up. The numbered ones still measure
-the round trip and show lost confirms. A Config = 0 frame (the handshake's neutral
-stream, a release) and the blind command are always numbered: whether the FC heard them
-is checked, or worth knowing. A confirm not back within ``CONFIRM_TIMEOUT_NS`` is counted
-lost (when the next command goes out); a command that a newer one replaced in the outbox,
-or that a release or re-open dropped from it, is not waited for.
+(``mk.confirm_every``): a confirm is a frame the daemon wakes up for, ~0.18 ms of CPU on
+the development VM with its handling. Of the commands that take control (Config bit 0),
+the first and then every ``confirm_every``-th is numbered; the others carry Frame 0,
+which asks the FC for no confirm (``mk-serial.md`` §5.3), and save that wake-up. The
+numbered ones still measure the round trip and show lost confirms. A Config = 0 frame
+(the handshake's neutral stream, a release) and the blind command are always numbered:
+whether the FC heard them is checked, or worth knowing. A confirm not back within
+``CONFIRM_TIMEOUT_NS`` is counted lost (when the next command goes out); a command that a
+newer one replaced in the outbox, or that a release or re-open dropped from it, is not
+waited for.
 
 Safety rules (``mk-serial.md`` §7-8; SPEC §2, §5):
 
