@@ -56,6 +56,13 @@ class MkConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
     version_retry_s: Annotated[float, Meta(gt=0, le=5)] = 0.5
     answer_timeout_s: Annotated[float, Meta(gt=0, le=30)] = 2.0
     min_frame_gap_s: Annotated[float, Meta(ge=0.003, le=0.05)] = 0.003
+    confirm_every: Annotated[int, Meta(ge=1, le=20)] = 8
+    """Number one in this many ExternControl frames that take control (1: every one); the
+    others carry Frame 0, which asks the FC for no 'B' confirm (mk-serial.md §5.3). Each
+    confirm is a frame the daemon wakes up for: ~0.18 ms of CPU on the development VM
+    (1 in 4 instead of every one saved 0.14 ms a step). At 8, one every ~0.4 s still gives
+    the round-trip time and the lost-confirm count. Config = 0 frames (the handshake, the
+    release) are always numbered: their confirms are checked. At most 20 (one a second)."""
     release_frames: Annotated[int, Meta(ge=3, le=50)] = 5
     release_interval_s: Annotated[float, Meta(ge=0.003, le=0.5)] = 0.05
     handshake_s: Annotated[float, Meta(ge=1.0, le=10)] = 1.0

@@ -102,6 +102,8 @@ def test_file_values_are_used(tmp_path: Path) -> None:
         ("control:\n  kp_xy: 1001\n", "control.kp_xy", "<= 1000"),
         ("control:\n  gas_max: 256\n", "control.gas_max", "<= 255"),
         ("mk:\n  g_mps2: 20\n", "mk.g_mps2", "<= 9.9"),
+        ("mk:\n  confirm_every: 0\n", "mk.confirm_every", ">= 1"),
+        ("mk:\n  confirm_every: 21\n", "mk.confirm_every", "<= 20"),
         ("mk:\n  signs:\n    nick: 2\n", "mk.signs.nick", "2"),
         ("mk:\n  signs:\n    roll: 0\n", "mk.signs.roll", "0"),
         ("laser:\n  hat_steps: [44, 2000]\n", "laser.hat_steps[1]", "<= 1080"),

@@ -17,7 +17,7 @@ from mkflight.control.phases import Phase
 from mkflight.conversions import NS_PER_S
 from mkflight.errors import FlightError, LinkError
 from mkflight.mk.link import MkLink
-from mkflight.mk.messages import ExternControl, Ppm
+from mkflight.mk.messages import Ppm
 from mkflight.msgs import Command
 from mkflight.safety.pilot import PPM_PERIOD_S, PilotWatch
 
@@ -40,9 +40,9 @@ class MkCommands:
 
     def handshake_ok(self, phase: Phase) -> bool:
         """In HANDSHAKE: whether the FC has confirmed enough frames since it began."""
-        confirms = self._link.stats.confirms
         if phase is not Phase.HANDSHAKE:
             return False
+        confirms = self._link.stats.confirms
         if self._confirms0 is None:
             self._confirms0 = confirms
         return confirms - self._confirms0 >= HANDSHAKE_CONFIRMS
@@ -65,14 +65,12 @@ class MkCommands:
         if command.take_control and self._link.control_blocked is not None:
             msg = f"control was handed back to the pilot ({self._link.control_blocked})"
             raise FlightError(msg)
-        self._link.send_extern_control(
-            ExternControl(
-                nick=command.nick_counts,
-                roll=command.roll_counts,
-                yaw=command.yaw_counts,
-                gas=command.gas_counts,
-                config=1 if command.take_control else 0,
-            )
+        self._link.send_sticks(
+            command.nick_counts,
+            command.roll_counts,
+            command.yaw_counts,
+            command.gas_counts,
+            take_control=command.take_control,
         )
 
     def ask_sticks(self, t_ns: int) -> None:

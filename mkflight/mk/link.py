@@ -386,7 +386,7 @@ class MkLink:
 
         Asked once when the data goes stale (the flight: level, the hover gas now), so
         nothing is built on the step's path; its answer (None: nothing) is sent only while
-        we have control, numbered like any command (see :mod:`mkflight.mk.subscription`).
+        we have control, numbered for a confirm (see :mod:`mkflight.mk.subscription`).
         """
         self._rx.blind_command = provider
 
@@ -428,17 +428,28 @@ class MkLink:
         if self._closing is None:
             self._tx.allow_control()
 
-    def send_extern_control(self, command: ExternControl) -> int:
-        """Send one ExternControl, numbered for a confirm; return its Frame number.
+    def send_extern_control(self, command: ExternControl, *, confirm: bool = False) -> int:
+        """Send one ExternControl; return its Frame number (0: no confirm asked).
 
-        The command is checked against mkflight's limits and packed (which range-checks
-        every field) before anything is written.
+        A command that takes control is numbered for a confirm once in
+        ``mk.confirm_every`` (each confirm costs a wake-up); one with Config = 0, or with
+        ``confirm``, always is (see :mod:`mkflight.mk.sender`). The command is checked
+        against mkflight's limits and packed (which range-checks every field) before
+        anything is written.
 
         Raises:
             CommandRangeError: a field is non-finite, non-integral or beyond the limits.
             LinkError: the port is gone, or control was handed back (``control_blocked``).
         """
-        return self._tx.send_extern_control(command)
+        return self._tx.send_extern_control(command, confirm=confirm)
+
+    def send_sticks(self, nick: int, roll: int, yaw: int, gas: int, *, take_control: bool) -> int:
+        """:meth:`send_extern_control` of the command with these counts (the rest 0).
+
+        Without building an :class:`ExternControl` when they are ints within the limits:
+        the flight step's path, one a step. The same frame, checks and errors.
+        """
+        return self._tx.send_sticks(nick, roll, yaw, gas, take_control=take_control)
 
     def request_ppm(self) -> None:
         """Ask for the pilot's receiver channels ('p'); the answer lands in ``last_ppm``."""

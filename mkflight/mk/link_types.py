@@ -37,6 +37,8 @@ class LinkSettings:
     version_retry_s: float
     answer_timeout_s: float
     min_frame_gap_s: float
+    confirm_every: int
+    """``mk.confirm_every``: every how many commands that take control one is numbered."""
     release_frames: int
     release_interval_s: float
     reopen_backoff_s: float
@@ -58,6 +60,7 @@ class LinkSettings:
             version_retry_s=mk.version_retry_s,
             answer_timeout_s=mk.answer_timeout_s,
             min_frame_gap_s=mk.min_frame_gap_s,
+            confirm_every=mk.confirm_every,
             release_frames=mk.release_frames,
             release_interval_s=mk.release_interval_s,
             reopen_backoff_s=mk.reopen_backoff_s,

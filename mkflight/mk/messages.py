@@ -249,6 +249,18 @@ EXTERN_FRAME_OFFSET: Final = 9  # the Frame byte inside the 11-byte payload
 EXTERN_CONFIG_OFFSET: Final = 10  # the Config byte inside the 11-byte payload
 
 
+def pack_sticks(nick: int, roll: int, yaw: int, gas: int, frame: int, config: int) -> bytes:
+    """The payload of an ExternControl with these fields (the rest 0), without building it.
+
+    ``ExternControl(nick=nick, roll=roll, yaw=yaw, gas=gas, frame=frame,
+    config=config).pack()``, for the flight's path (one a step). For ints already checked
+    against their wire ranges (as the link checks its stricter limits); anything else
+    raises ``struct.error``, which names no field: :meth:`ExternControl.pack` is the
+    checking path.
+    """
+    return _EC_STRUCT.pack(0, 0, 0, nick, roll, yaw, gas, 0, 0, frame, config)
+
+
 def _wire_int(name: str, value: object) -> int:
     """Check one outgoing field: an integral, finite number inside its wire range."""
     lo, hi = _EC_RANGES[name]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import math
 import time
 
 import pytest
@@ -94,6 +95,65 @@ async def test_extern_control_is_numbered_confirmed_and_range_checked(
     assert await link.wait_confirm(first, timeout_s=1.0)
     assert link.stats.confirms == 1
     assert link.stats.rtt_ns[0] >= 0
+
+
+@pytest.mark.parametrize("take_control", [True, False])
+async def test_send_sticks_writes_the_frame_send_extern_control_writes(
+    take_control: bool,
+) -> None:
+    frames: list[bytes] = []
+    for fast in (True, False):
+        host, _device = memory_pair("host", "fc")
+        link = MkLink(host, FAST, DEFAULT_CALIBRATION)
+        link.start()
+        if fast:
+            link.send_sticks(-20, 15, 3, 100, take_control=take_control)
+        else:
+            config = 1 if take_control else 0
+            command = ExternControl(nick=-20, roll=15, yaw=3, gas=100, config=config)
+            link.send_extern_control(command)
+        await link.drain()
+        frames.append(host.written[-1])
+        await link.close(release=False)
+    assert frames[0] == frames[1]
+    assert ExternControl.decode(FrameParser().feed(frames[0])[0]).config == int(take_control)
+
+
+@pytest.mark.parametrize(
+    ("counts", "field"),
+    [
+        ((128, 0, 0, 100), "nick"),
+        ((0, -128, 0, 100), "roll"),
+        ((0, 0, 200, 100), "yaw"),
+        ((0, 0, 0, -1), "gas"),
+        ((0, 0, 0, FAST.gas_max + 1), "gas"),
+        ((0, 0, 0, math.nan), "gas"),
+        ((0.5, 0, 0, 100), "nick"),
+    ],
+)
+async def test_send_sticks_refuses_what_send_extern_control_refuses(
+    pair: tuple[MkLink, FakeFc], counts: tuple[float, float, float, float], field: str
+) -> None:
+    link, _ = pair
+    nick, roll, yaw, gas = counts
+    with pytest.raises(CommandRangeError, match=field):
+        link.send_sticks(nick, roll, yaw, gas, take_control=True)  # type: ignore[arg-type]
+    assert link.stats.commands_sent == 0
+
+
+async def test_send_sticks_takes_whole_floats_like_the_command(pair: tuple[MkLink, FakeFc]) -> None:
+    link, fc = pair
+    link.send_sticks(5.0, 0, 0, 90.0, take_control=True)  # type: ignore[arg-type]
+    await asyncio.wait_for(_until(lambda: fc.count("b") == 1, fc), 1.0)
+    assert (fc.commands()[0].nick, fc.commands()[0].gas) == (5, 90)
+
+
+async def test_send_sticks_is_refused_after_a_release(pair: tuple[MkLink, FakeFc]) -> None:
+    link, _ = pair
+    await link.release(quick=True)
+    with pytest.raises(LinkError, match="not taking control"):
+        link.send_sticks(0, 0, 0, 100, take_control=True)
+    link.send_sticks(0, 0, 0, 0, take_control=False)  # Config 0 is always allowed
 
 
 async def test_frame_numbers_roll_over_skipping_zero(pair: tuple[MkLink, FakeFc]) -> None:

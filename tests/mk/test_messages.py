@@ -24,6 +24,7 @@ from mkflight.mk.messages import (
     VersionInfo,
     debug_request,
     label_request,
+    pack_sticks,
     ppm_request,
     request,
     version_request,
@@ -395,6 +396,21 @@ def test_extern_control_round_trip(
     frame = parse_one(data)
     assert frame.payload[11:] == b"\x00"
     assert ExternControl.decode(frame) == command
+
+
+@given(
+    st.integers(-128, 127),
+    st.integers(-128, 127),
+    st.integers(-128, 127),
+    st.integers(0, 255),
+    st.integers(0, 255),
+    st.integers(0, 255),
+)
+def test_pack_sticks_is_the_commands_pack(
+    nick: int, roll: int, yaw: int, gas: int, frame: int, config: int
+) -> None:
+    command = ExternControl(nick=nick, roll=roll, yaw=yaw, gas=gas, frame=frame, config=config)
+    assert pack_sticks(nick, roll, yaw, gas, frame, config) == command.pack()
 
 
 # --- Confirm: MK-13, MK-14 ---------------------------------------------------------------
