@@ -45,6 +45,22 @@ __all__ = ["ReplayReport", "replay_flight", "replay_seed"]
 MATCHER_SECTIONS = ("mk", "laser", "scanmatch")
 
 
+#: Keys added after flights were recorded without them, with the value that does what those
+#: flights did (the key's default may do otherwise): (section, key) -> value.
+BEFORE_THE_KEY: dict[tuple[str, str], Any] = {
+    ("mk", "confirm_every"): 1,  # every command was numbered for a confirm
+}
+
+
+def with_keys_of_their_time(recorded: dict[str, Any]) -> dict[str, Any]:
+    """``recorded`` with each key of :data:`BEFORE_THE_KEY` it lacks set to what it did then."""
+    for (section, key), value in BEFORE_THE_KEY.items():
+        part = recorded.get(section)
+        if isinstance(part, dict) and key not in part:
+            part[key] = value
+    return recorded
+
+
 def replay_config(recorded: dict[str, Any], overrides: list[str], source: Path) -> Config:
     """The recorded configuration with ``--set`` items on top, the matcher in-process.
 
@@ -52,7 +68,7 @@ def replay_config(recorded: dict[str, Any], overrides: list[str], source: Path) 
         ConfigError: a bad ``--set`` (unknown key, wrong type), naming it.
         ReplayError: the recorded configuration itself does not load (another version).
     """
-    data = msgspec.json.decode(msgspec.json.encode(recorded))  # a deep copy
+    data = with_keys_of_their_time(msgspec.json.decode(msgspec.json.encode(recorded)))  # a copy
     try:
         base = config_from_dict(data, f"{source}/flight.json config")
     except ConfigError as err:
@@ -69,7 +85,9 @@ def replay_config(recorded: dict[str, Any], overrides: list[str], source: Path) 
 
 def matcher_changed(recorded: dict[str, Any], cfg: Config) -> bool:
     """Does ``cfg`` change what the scan matcher sees or does (its worker aside)?"""
-    base = config_from_dict(msgspec.json.decode(msgspec.json.encode(recorded)))
+    base = config_from_dict(
+        with_keys_of_their_time(msgspec.json.decode(msgspec.json.encode(recorded)))
+    )
     for name in MATCHER_SECTIONS:
         a, b = getattr(base, name), getattr(cfg, name)
         if name == "scanmatch":
