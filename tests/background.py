@@ -1,0 +1,146 @@
+"""The suite's real-time flights, flown in the background while the other tests run.
+
+A real-time flight (``mkflight sim`` and ``mkflight fly`` in their own processes, or
+``fly --sim``) takes tens of seconds of wall time but little CPU (the daemon ~4 %, the
+simulator ~10-15 % of a core). So the flights a session needs are not flown when their
+fixture is first set up: each is a *job* (:func:`job`, a function of a fresh folder that
+flies and returns what the tests read), and a test that reads one says so with the
+``background`` marker (``@pytest.mark.background("key", ...)``, or a module's
+``pytestmark``). When the session starts, ``tests/conftest.py`` starts the jobs of the
+selected tests, :data:`AT_ONCE` at a time, in the order their tests will run, and moves the
+modules of those tests after all others; the fixtures then wait for their job's result
+(:meth:`Background.result`), by which time it is usually there.
+
+The flights must not be starved by the CPU-bound tests beside them (a flight's late step
+is a different flight: a harder touchdown, a replay that differs). The workers that start
+them are threads created before the main thread lowers its own priority
+(:data:`MAIN_NICE`): on Linux a nice value is a thread's, and a process inherits the nice
+value of the thread that forked it, so the flights run at the normal priority and the
+tests, and the commands they run, below it.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import re
+import threading
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from concurrent.futures import Future
+from pathlib import Path
+from typing import Any, Final, TypeVar
+
+#: Flights flown side by side: ~0.7 of the 2 cores CI has, so the tests keep one.
+AT_ONCE: Final = 4
+#: The main thread's nice value once the flights are started: below the flights' 0,
+#: not so low that a test's own real-time work stops when the flights start up.
+MAIN_NICE: Final = 10
+
+T = TypeVar("T")
+Job = Callable[[Path], Any]
+
+#: Every job the test modules define, by key (filled as they are imported).
+JOBS: dict[str, Job] = {}
+
+
+def job(key: str) -> Callable[[Callable[[Path], T]], Callable[[Path], T]]:
+    """Register the decorated function as the background job ``key``.
+
+    It is called once a session, in a worker thread, with a fresh empty folder of its
+    own, and returns what the tests read (or raises: each test that reads it then errors
+    with that exception).
+    """
+
+    def register(fn: Callable[[Path], T]) -> Callable[[Path], T]:
+        if JOBS.setdefault(key, fn) is not fn:
+            msg = f"two background jobs named {key!r}"
+            raise ValueError(msg)
+        return fn
+
+    return register
+
+
+class Background:
+    """The session's background flights: :data:`AT_ONCE` worker threads and the jobs'
+    futures, by key."""
+
+    def __init__(self, base: Path, at_once: int = AT_ONCE) -> None:
+        self.base = base
+        self._todo: queue.SimpleQueue[tuple[str, Future[Any]] | None] = queue.SimpleQueue()
+        self._futures: dict[str, Future[Any]] = {}
+        self._lock = threading.Lock()
+        self._workers = [
+            threading.Thread(target=self._work, name=f"background-{i}", daemon=True)
+            for i in range(at_once)
+        ]
+        for worker in self._workers:
+            worker.start()
+
+    def start(self, keys: Iterable[str]) -> None:
+        """Queue the jobs ``keys`` (those already queued are left where they are)."""
+        with self._lock:
+            for key in keys:
+                if key not in JOBS:
+                    msg = f"no background job {key!r} (tests/background.py: job)"
+                    raise KeyError(msg)
+                if key not in self._futures:
+                    future: Future[Any] = Future()
+                    self._futures[key] = future
+                    self._todo.put((key, future))
+
+    def result(self, key: str) -> Any:
+        """The job ``key``'s result, once it has flown (queued now if no test declared it)."""
+        self.start([key])
+        return self._futures[key].result()
+
+    def results(self, keys: Mapping[str, str]) -> Mapping[str, Any]:
+        """A mapping of ``keys``' names to their jobs' results, each waited for when it is
+        first read (a test waits for its own flight only)."""
+        return _Results(self, keys)
+
+    def close(self) -> None:
+        """Drop the jobs not started and wait for those flying (each has its own timeout)."""
+        with self._lock:
+            for future in self._futures.values():
+                future.cancel()
+        for _ in self._workers:
+            self._todo.put(None)
+        for worker in self._workers:
+            worker.join()
+
+    def _work(self) -> None:
+        while (item := self._todo.get()) is not None:
+            key, future = item
+            if not future.set_running_or_notify_cancel():
+                continue
+            folder = self.base / re.sub(r"[^\w.-]", "_", key)
+            try:
+                folder.mkdir()
+                future.set_result(JOBS[key](folder))
+            except BaseException as exc:  # handed to the tests that read it
+                future.set_exception(exc)
+
+
+class _Results(Mapping[str, Any]):
+    """Names to background results, each read through :meth:`Background.result`."""
+
+    def __init__(self, background: Background, keys: Mapping[str, str]) -> None:
+        self._background = background
+        self._keys = dict(keys)
+
+    def __getitem__(self, name: str) -> Any:
+        return self._background.result(self._keys[name])
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._keys)
+
+    def __len__(self) -> int:
+        return len(self._keys)
+
+
+def lower_main_priority() -> None:
+    """Lower the calling thread's priority to :data:`MAIN_NICE` (Linux: per thread; the
+    threads and processes it starts from now on inherit it)."""
+    current = os.getpriority(os.PRIO_PROCESS, 0)
+    if current < MAIN_NICE:
+        os.nice(MAIN_NICE - current)
