@@ -12,21 +12,21 @@ modules of those tests after all others; the fixtures then wait for their job's 
 (:meth:`Background.result`), by which time it is usually there.
 
 The flights must not be starved by the CPU-bound tests beside them (a flight's late step
-is a different flight: a harder touchdown, a replay that differs). The workers that start
-them are threads created before the main thread lowers its own priority
+is a different flight: a harder touchdown, a replay that differs). The worker processes
+that fly them are started before the main thread lowers its own priority
 (:data:`MAIN_NICE`): on Linux a nice value is a thread's, and a process inherits the nice
 value of the thread that forked it, so the flights run at the normal priority and the
-tests, and the commands they run, below it.
+tests, and the commands they run, below it. Tests that fly in this process (marked
+``realtime``) run last, once the background flights have all ended.
 """
 
 from __future__ import annotations
 
+import multiprocessing
 import os
-import queue
 import re
-import threading
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from concurrent.futures import Future
+from concurrent.futures import Future, ProcessPoolExecutor, wait
 from pathlib import Path
 from typing import Any, Final, TypeVar
 
@@ -46,7 +46,7 @@ JOBS: dict[str, Job] = {}
 def job(key: str) -> Callable[[Callable[[Path], T]], Callable[[Path], T]]:
     """Register the decorated function as the background job ``key``.
 
-    It is called once a session, in a worker thread, with a fresh empty folder of its
+    It is called once a session, in a worker process, with a fresh empty folder of its
     own, and returns what the tests read (or raises: each test that reads it then errors
     with that exception).
     """
@@ -61,36 +61,42 @@ def job(key: str) -> Callable[[Callable[[Path], T]], Callable[[Path], T]]:
 
 
 class Background:
-    """The session's background flights: :data:`AT_ONCE` worker threads and the jobs'
-    futures, by key."""
+    """The session's background flights: :data:`AT_ONCE` worker processes and the jobs'
+    futures, by key.
+
+    Processes, not threads: a job's own timing (the signal it sends at a time counted
+    from the hold, the moment it notes for it) must not wait for the interpreter lock of
+    this process, whose main thread runs the CPU-bound tests below the flights' priority.
+    A job is pickled by reference, so it is a module-level function (or a
+    :func:`functools.partial` of one) of an importable module; what it returns is pickled
+    back.
+    """
 
     def __init__(self, base: Path, at_once: int = AT_ONCE) -> None:
         self.base = base
-        self._todo: queue.SimpleQueue[tuple[str, Future[Any]] | None] = queue.SimpleQueue()
+        self._pool = ProcessPoolExecutor(at_once, mp_context=multiprocessing.get_context("spawn"))
         self._futures: dict[str, Future[Any]] = {}
-        self._lock = threading.Lock()
-        self._workers = [
-            threading.Thread(target=self._work, name=f"background-{i}", daemon=True)
-            for i in range(at_once)
-        ]
-        for worker in self._workers:
-            worker.start()
 
     def start(self, keys: Iterable[str]) -> None:
-        """Queue the jobs ``keys`` (those already queued are left where they are)."""
-        with self._lock:
-            for key in keys:
-                if key not in JOBS:
-                    msg = f"no background job {key!r} (tests/background.py: job)"
-                    raise KeyError(msg)
-                if key not in self._futures:
-                    future: Future[Any] = Future()
-                    self._futures[key] = future
-                    self._todo.put((key, future))
+        """Queue the jobs ``keys``, in this order (those queued already stay where they are).
+
+        The pool starts its worker processes as the first jobs come, in this thread: call
+        it before :func:`lower_main_priority`.
+        """
+        for key in keys:
+            if key not in JOBS:
+                msg = f"no background job {key!r} (tests/background.py: job)"
+                raise KeyError(msg)
+            if key not in self._futures:
+                folder = self.base / re.sub(r"[^\w.-]", "_", key)
+                folder.mkdir()
+                self._futures[key] = self._pool.submit(JOBS[key], folder)
 
     def result(self, key: str) -> Any:
-        """The job ``key``'s result, once it has flown (queued now if no test declared it)."""
-        self.start([key])
+        """The job ``key``'s result, once it has flown (or the exception it raised)."""
+        if key not in self._futures:
+            msg = f"background flight {key!r} read by a test not marked background({key!r})"
+            raise KeyError(msg)
         return self._futures[key].result()
 
     def results(self, keys: Mapping[str, str]) -> Mapping[str, Any]:
@@ -98,27 +104,13 @@ class Background:
         first read (a test waits for its own flight only)."""
         return _Results(self, keys)
 
+    def wait_all(self) -> None:
+        """Return when every job has ended (the CPU is then the tests' alone)."""
+        wait(self._futures.values())
+
     def close(self) -> None:
         """Drop the jobs not started and wait for those flying (each has its own timeout)."""
-        with self._lock:
-            for future in self._futures.values():
-                future.cancel()
-        for _ in self._workers:
-            self._todo.put(None)
-        for worker in self._workers:
-            worker.join()
-
-    def _work(self) -> None:
-        while (item := self._todo.get()) is not None:
-            key, future = item
-            if not future.set_running_or_notify_cancel():
-                continue
-            folder = self.base / re.sub(r"[^\w.-]", "_", key)
-            try:
-                folder.mkdir()
-                future.set_result(JOBS[key](folder))
-            except BaseException as exc:  # handed to the tests that read it
-                future.set_exception(exc)
+        self._pool.shutdown(wait=True, cancel_futures=True)
 
 
 class _Results(Mapping[str, Any]):

@@ -46,6 +46,11 @@ def pytest_configure(config: pytest.Config) -> None:
         "background(*keys): reads the background flights keys (tests/background.py); "
         "started when the session starts, the module's tests after all others",
     )
+    config.addinivalue_line(
+        "markers",
+        "realtime: flies in this process in real time: runs last, once the background "
+        "flights have all ended (tests/background.py)",
+    )
 
 
 def _shared_path(item: pytest.Item) -> Path | None:
@@ -66,10 +71,13 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     if absent:
         config.hook.pytest_deselected(items=absent)
         items[:] = keep
-    # The modules that read background flights last, each kept whole (its module fixtures
-    # are set up once): their flights fly while the other tests run.
+    # The modules that read background flights after the others, each kept whole (its
+    # module fixtures are set up once): their flights fly while the other tests run. Last,
+    # the tests that fly in this process, alone.
     waiting = {item.path for item in items if _background_keys(item)}
-    items.sort(key=lambda item: item.path in waiting)  # stable: the order is kept
+    items.sort(  # stable: the order is kept otherwise
+        key=lambda item: (item.get_closest_marker("realtime") is not None, item.path in waiting)
+    )
 
 
 def _background_keys(item: pytest.Item) -> list[str]:
@@ -88,6 +96,13 @@ def background(
     lower_main_priority()
     yield flights
     flights.close()
+
+
+@pytest.fixture(autouse=True)
+def _alone_if_realtime(request: pytest.FixtureRequest, background: Background) -> None:
+    """A test marked ``realtime`` starts once every background flight has ended."""
+    if request.node.get_closest_marker("realtime") is not None:
+        background.wait_all()
 
 
 @pytest.fixture(scope="session")

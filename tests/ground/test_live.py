@@ -603,6 +603,7 @@ class FailsInHold(FakeChannel):
         super().log(message, log_time=log_time)
 
 
+@pytest.mark.realtime  # in this process: once the background flights have ended
 async def test_a_view_that_fails_in_hold_leaves_the_flight_as_it_was(tmp_path: Path) -> None:
     from mkflight.flight.app import FlightApp, FlightOptions
     from mkflight.sim.live import LiveSim
