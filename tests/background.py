@@ -1,4 +1,4 @@
-"""The suite's real-time flights, flown in the background while the other tests run.
+"""The suite's real-time flights (and mypy), run in the background while the other tests run.
 
 A real-time flight (``mkflight sim`` and ``mkflight fly`` in their own processes, or
 ``fly --sim``) takes tens of seconds of wall time but little CPU (the daemon ~4 %, the
@@ -9,7 +9,8 @@ flies and returns what the tests read), and a test that reads one says so with t
 ``pytestmark``). When the session starts, ``tests/conftest.py`` starts the jobs of the
 selected tests, :data:`AT_ONCE` at a time, in the order their tests will run, and moves the
 modules of those tests after all others; the fixtures then wait for their job's result
-(:meth:`Background.result`), by which time it is usually there.
+(:meth:`Background.result`), by which time it is usually there. A long CPU-bound command
+whose result a test reads (mypy) is a job too, run below the flights' priority.
 
 The flights must not be starved by the CPU-bound tests beside them (a flight's late step
 is a different flight: a harder touchdown, a replay that differs). The worker processes

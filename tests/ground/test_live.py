@@ -155,7 +155,7 @@ async def _watch(port: int, folder: Path) -> Watched:
 
 @job("live-watched")
 def _watched(base: Path) -> Watched:
-    """The flight and its two clients, in a background worker's own event loop."""
+    """The flight and its two clients, in a background worker process's event loop."""
     return asyncio.run(asyncio.wait_for(_watch(free_port(), base / "flight"), timeout=120))
 
 
