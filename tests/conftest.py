@@ -81,7 +81,10 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 def _background_keys(item: pytest.Item) -> list[str]:
-    """The background flights ``item`` reads (its ``background`` markers' keys)."""
+    """The background flights ``item`` reads (its ``background`` markers' keys; none if it
+    is marked to skip)."""
+    if item.get_closest_marker("skip") is not None:
+        return []
     return [str(key) for marker in item.iter_markers("background") for key in marker.args]
 
 
