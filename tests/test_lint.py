@@ -7,14 +7,13 @@ not on ``PATH`` (a venv used without activating it) checks with its own versions
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from tests.background import MAIN_NICE, Background, job
+from tests.background import Background, job, lower_main_priority
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.lint
@@ -44,7 +43,7 @@ def _mypy(_: Path) -> subprocess.CompletedProcess[str]:
         capture_output=True,
         text=True,
         check=False,
-        preexec_fn=lambda: os.nice(MAIN_NICE),
+        preexec_fn=lower_main_priority,
     )
 
 
