@@ -13,15 +13,12 @@ modules of those tests after all others; the fixtures then wait for their job's 
 whose result a test reads (mypy) is a job too, run below the flights' priority.
 
 The flights must not be starved by the CPU-bound tests beside them (a flight's late step
-is a different flight: a harder touchdown, a replay that differs, a degenerate scan). The
-worker processes that fly them are started before the main thread lowers its own priority
-(:func:`lower_main_priority`: ``SCHED_IDLE``): on Linux a scheduling policy is a thread's,
-and a process inherits the policy of the thread that forked it, so the flights run at the
-normal priority and the tests, and the commands they run, below it. (A nice value of 10
-was not enough: beside a niced pytest run, one garbage flight in eight raised a
-degenerate-scan failsafe in its hold; under ``SCHED_IDLE`` none in sixteen did.) Tests
-that fly in this process (marked ``realtime``) run last, once the background flights have
-all ended.
+is a different flight: a harder touchdown, a replay that differs). The worker processes
+that fly them are started before the main thread lowers its own priority
+(:data:`MAIN_NICE`): on Linux a nice value is a thread's, and a process inherits the nice
+value of the thread that forked it, so the flights run at the normal priority and the
+tests, and the commands they run, below it. Tests that fly in this process (marked
+``realtime``) run last, once the background flights have all ended.
 """
 
 from __future__ import annotations
@@ -36,8 +33,8 @@ from typing import Any, Final, TypeVar
 
 #: Flights flown side by side: ~0.7 of the 2 cores CI has, so the tests keep one.
 AT_ONCE: Final = 4
-#: The main thread's nice value once the flights are started, where ``SCHED_IDLE`` is not
-#: available (see :func:`lower_main_priority`): below the flights' 0.
+#: The main thread's nice value once the flights are started: below the flights' 0,
+#: not so low that a test's own real-time work stops when the flights start up.
 MAIN_NICE: Final = 10
 
 T = TypeVar("T")
@@ -135,13 +132,8 @@ class _Results(Mapping[str, Any]):
 
 
 def lower_main_priority() -> None:
-    """Put the calling thread below the flights: ``SCHED_IDLE`` where Linux has it (a
-    flight that wakes preempts it at once, and a core running only it counts as idle when
-    the scheduler places a waking flight), else the nice value :data:`MAIN_NICE`. Per
-    thread on Linux; the threads and processes it starts from now on inherit it."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
-    except (AttributeError, OSError):
-        current = os.getpriority(os.PRIO_PROCESS, 0)
-        if current < MAIN_NICE:
-            os.nice(MAIN_NICE - current)
+    """Lower the calling thread's priority to :data:`MAIN_NICE` (Linux: per thread; the
+    threads and processes it starts from now on inherit it)."""
+    current = os.getpriority(os.PRIO_PROCESS, 0)
+    if current < MAIN_NICE:
+        os.nice(MAIN_NICE - current)

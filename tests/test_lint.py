@@ -7,13 +7,14 @@ not on ``PATH`` (a venv used without activating it) checks with its own versions
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from tests.background import Background, job, lower_main_priority
+from tests.background import MAIN_NICE, Background, job
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.lint
@@ -43,7 +44,7 @@ def _mypy(_: Path) -> subprocess.CompletedProcess[str]:
         capture_output=True,
         text=True,
         check=False,
-        preexec_fn=lower_main_priority,
+        preexec_fn=lambda: os.nice(MAIN_NICE),
     )
 
 
