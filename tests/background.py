@@ -34,7 +34,9 @@ from typing import Any, Final, TypeVar
 #: Flights flown side by side: ~0.7 of the 2 cores CI has, so the tests keep one.
 AT_ONCE: Final = 4
 #: The main thread's nice value once the flights are started: below the flights' 0,
-#: not so low that a test's own real-time work stops when the flights start up.
+#: not so low that a test's own real-time work stops when the flights start up
+#: (``SCHED_IDLE`` shields the flights better, but then the emulators that tests run in
+#: this process answer late: scans 0.1 s +- 10 ms apart, a stall restarted in time failed).
 MAIN_NICE: Final = 10
 
 T = TypeVar("T")
