@@ -13,9 +13,12 @@ Run only the cross-checks with ``python -m pytest -m shared``.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+
+from tests.background import Background, lower_main_priority
 
 #: The shared documents' folder: ``$MKFLIGHT_SHARED``, else ``../shared`` beside the repository.
 SHARED_DIR = Path(
@@ -38,6 +41,16 @@ def pytest_configure(config: pytest.Config) -> None:
         "shared(path): cross-checks an in-project transcription against ../shared/<path> "
         "(or $MKFLIGHT_SHARED/<path>); deselected when that file is absent",
     )
+    config.addinivalue_line(
+        "markers",
+        "background(*keys): reads the background flights keys (tests/background.py); "
+        "started when the session starts, the module's tests after all others",
+    )
+    config.addinivalue_line(
+        "markers",
+        "realtime: flies in this process in real time: runs last, once the background "
+        "flights have all ended (tests/background.py)",
+    )
 
 
 def _shared_path(item: pytest.Item) -> Path | None:
@@ -58,6 +71,41 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     if absent:
         config.hook.pytest_deselected(items=absent)
         items[:] = keep
+    # The modules that read background flights after the others, each kept whole (its
+    # module fixtures are set up once): their flights fly while the other tests run. Last,
+    # the tests that fly in this process, alone.
+    waiting = {item.path for item in items if _background_keys(item)}
+    items.sort(  # stable: the order is kept otherwise
+        key=lambda item: (item.get_closest_marker("realtime") is not None, item.path in waiting)
+    )
+
+
+def _background_keys(item: pytest.Item) -> list[str]:
+    """The background flights ``item`` reads (its ``background`` markers' keys; none if it
+    is marked to skip)."""
+    if item.get_closest_marker("skip") is not None:
+        return []
+    return [str(key) for marker in item.iter_markers("background") for key in marker.args]
+
+
+@pytest.fixture(scope="session", autouse=True)
+def background(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[Background]:
+    """The session's background flights (tests/background.py), started in the order their
+    tests will run; then this thread, and so the tests, runs below their priority."""
+    flights = Background(tmp_path_factory.mktemp("background"))
+    flights.start(key for item in request.session.items for key in _background_keys(item))
+    lower_main_priority()
+    yield flights
+    flights.close()
+
+
+@pytest.fixture(autouse=True)
+def _alone_if_realtime(request: pytest.FixtureRequest, background: Background) -> None:
+    """A test marked ``realtime`` starts once every background flight has ended."""
+    if request.node.get_closest_marker("realtime") is not None:
+        background.wait_all()
 
 
 @pytest.fixture(scope="session")

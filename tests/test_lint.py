@@ -7,11 +7,14 @@ not on ``PATH`` (a venv used without activating it) checks with its own versions
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+
+from tests.background import MAIN_NICE, Background, job
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.lint
@@ -31,6 +34,21 @@ def test_ruff_format_is_clean() -> None:
     assert result.returncode == 0, result.stdout + result.stderr
 
 
-def test_mypy_strict_is_clean() -> None:
-    result = _run(sys.executable, "-m", "mypy")
+@job("mypy")
+def _mypy(_: Path) -> subprocess.CompletedProcess[str]:
+    """mypy over the whole tree (tens of seconds of CPU on a fresh clone), run in the
+    background beside the other tests, at their priority (below the flights')."""
+    return subprocess.run(
+        [sys.executable, "-m", "mypy"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=False,
+        preexec_fn=lambda: os.nice(MAIN_NICE),
+    )
+
+
+@pytest.mark.background("mypy")
+def test_mypy_strict_is_clean(background: Background) -> None:
+    result: subprocess.CompletedProcess[str] = background.result("mypy")
     assert result.returncode == 0, result.stdout + result.stderr

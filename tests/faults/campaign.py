@@ -4,8 +4,9 @@ A scenario (:mod:`tests.faults.scenarios`) is ``mkflight sim`` in its own proces
 and the URG on ptys, with its scheduled faults) and ``mkflight fly --hover`` flying it, in
 real time, as on hardware. Faults inside the daemon go in through
 :mod:`tests.faults.inject` (the real CLI with a fault armed after two seconds of hold);
-signals and pauses are sent from here. Flights run :data:`MAX_AT_ONCE` at a time; CI flies
-every scenario. What a flight left (:class:`Flight`: exit code, output, the folder, the
+signals and pauses are sent from here. Each flight is a background job
+(:mod:`tests.background`: a few at a time, beside the other tests); CI flies every
+scenario. What a flight left (:class:`Flight`: exit code, output, the folder, the
 simulator's JSON log lines, the signals sent and when) is judged by
 :func:`tests.faults.judge.judge`.
 """
@@ -21,8 +22,6 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -31,7 +30,6 @@ from tests.faults.scenarios import Scenario
 
 REPO: Final = Path(__file__).resolve().parents[2]
 PY: Final = sys.executable
-MAX_AT_ONCE: Final = 4
 FLIGHT_TIMEOUT_S: Final = 120.0
 FC_RELEASE_WAIT_S: Final = 12.0  # the FC's hold counter runs out ~5.2 s after a frame
 
@@ -220,11 +218,3 @@ def _await_fc_released(flight: Flight, extern: queue.Queue[str]) -> None:
             state = extern.get(timeout=max(0.0, deadline - time.monotonic()))
         except queue.Empty:
             return
-
-
-def fly_all(scenarios: Iterable[Scenario], base: Path) -> dict[str, Flight]:
-    """Fly the scenarios, at most :data:`MAX_AT_ONCE` at a time."""
-    todo = list(scenarios)
-    with ThreadPoolExecutor(MAX_AT_ONCE) as pool:
-        flights = list(pool.map(lambda s: fly(s, base), todo))
-    return {f.scenario.name: f for f in flights}

@@ -2,7 +2,8 @@
 alike by :mod:`tests.faults.judge`.
 
 The flights are real (simulator and daemon in their own processes, on ptys, in real time)
-and fly four at a time in one module fixture; CI flies every scenario, and
+and fly in the background while the suite's other tests run (:mod:`tests.background`; a
+test flies only the scenarios it reads); CI flies every scenario, and
 ``tools/faults.py`` runs this module and writes the README's table from the verdicts
 (``MKFLIGHT_FAULTS_REPORT``). Faults that need no flight (NaN, inf and huge values in the
 config and in a recorded flight to replay) are judged here too.
@@ -11,48 +12,40 @@ config and in a recorded flight to replay) are judged here too.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import re
 import shutil
 import subprocess
+from collections.abc import Mapping
 from pathlib import Path
 
 import pytest
 
 from mkflight.logs import load_flight
-from tests.faults.campaign import PY, REPO, Flight, fly_all
+from tests.background import Background, job
+from tests.faults.campaign import PY, REPO, Flight, fly
 from tests.faults.judge import Verdict, judge, report_row
 from tests.faults.scenarios import SCENARIOS
 from tests.limits_check import flown_config, limit_violations
 
+for _sc in SCENARIOS:
+    job(f"campaign/{_sc.name}")(functools.partial(fly, _sc))
 
-def _selected(session: pytest.Session) -> set[str]:
-    """The scenarios whose tests will run (not skipped), and the baseline for replays."""
-    names: set[str] = set()
-    for item in session.items:
-        if item.get_closest_marker("skip") is not None:
-            continue
-        callspec = getattr(item, "callspec", None)
-        if item.name.startswith("test_fault[") and callspec is not None:
-            names.add(str(callspec.params["name"]))
-        if item.name.startswith("test_bad_values_in_a_recorded_flight"):
-            names.add("baseline")
-        if item.name.startswith("test_a_plain_hover_passes_no_fault_row"):
-            names.update(("baseline", "sigterm"))
-    return names
+
+def _reads(*names: str) -> pytest.MarkDecorator:
+    """The marker of a test that reads the flights of the scenarios ``names``."""
+    return pytest.mark.background(*(f"campaign/{name}" for name in names))
 
 
 @pytest.fixture(scope="module")
-def flights(
-    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
-) -> dict[str, Flight]:
-    wanted = _selected(request.session)
-    base = tmp_path_factory.mktemp("faults")
-    return fly_all([sc for sc in SCENARIOS if sc.name in wanted], base)
+def flights(background: Background) -> Mapping[str, Flight]:
+    """Each scenario's flight, by name (waited for when a test first reads it)."""
+    return background.results({sc.name: f"campaign/{sc.name}" for sc in SCENARIOS})
 
 
-@pytest.mark.parametrize("name", [sc.name for sc in SCENARIOS])
-def test_fault(name: str, flights: dict[str, Flight]) -> None:
+@pytest.mark.parametrize("name", [pytest.param(sc.name, marks=_reads(sc.name)) for sc in SCENARIOS])
+def test_fault(name: str, flights: Mapping[str, Flight]) -> None:
     flight = flights[name]
     if flight.skipped is not None:
         pytest.skip(flight.skipped)
@@ -65,8 +58,10 @@ def test_fault(name: str, flights: dict[str, Flight]) -> None:
     assert not verdict.problems, f"{verdict.problems}\nstderr tail:\n{tail}"
 
 
-@pytest.mark.parametrize("hover", ["baseline", "sigterm"])
-def test_a_plain_hover_passes_no_fault_row(hover: str, flights: dict[str, Flight]) -> None:
+@pytest.mark.parametrize(
+    "hover", [pytest.param(h, marks=_reads(h)) for h in ("baseline", "sigterm")]
+)
+def test_a_plain_hover_passes_no_fault_row(hover: str, flights: Mapping[str, Flight]) -> None:
     """Issue 18: a row must prove its fault. A plain hover, ended by ``--duration`` or by
     SIGTERM, judged as any other scenario's flight fails that row (its fault never fired,
     the daemon recorded nothing of it, or the outcome is a hover's)."""
@@ -156,9 +151,10 @@ def _tamper_poses(folder: Path, token: str) -> int:
     return changed
 
 
+@_reads("baseline")
 @pytest.mark.parametrize("token", ["NaN", "Infinity", "-Infinity", "1e400", "1e300", "null"])
 def test_bad_values_in_a_recorded_flight(
-    token: str, flights: dict[str, Flight], tmp_path: Path
+    token: str, flights: Mapping[str, Flight], tmp_path: Path
 ) -> None:
     """Poses in events.jsonl replaced by NaN, inf, huge, null: the replay either refuses the
     file in one line or flies it; then every command stays in limits and the determinism

@@ -1,9 +1,10 @@
 """``mkflight export``: a recorded flight as MCAP, read back and checked against its folder.
 
-One real flight (``fly --hover --sim``) is recorded per session. Its MCAP files are read
-with the ``mcap`` reader (JSON) and ``mcap-ros2-support``'s (``--ros2``); the topics, the
-counts, the times and the values are compared with the folder's own files, read by the
-format readers, not by the export's code.
+One real flight (``fly --hover --sim``, the background flight
+:data:`tests.flights.HOVER_SIM_8S`) is exported. Its MCAP files are read with the ``mcap``
+reader (JSON) and ``mcap-ros2-support``'s (``--ros2``); the topics, the counts, the times
+and the values are compared with the folder's own files, read by the format readers, not by
+the export's code.
 """
 
 from __future__ import annotations
@@ -47,6 +48,10 @@ from mkflight.logs.flight import extern_controls, load_flight
 from mkflight.logs.raw import read_raw
 from mkflight.logs.scans import read_scans
 from mkflight.logs.schema import Failsafe, PhaseChange, Scan, Step
+from tests.background import Background
+from tests.flights import HOVER_SIM_8S
+
+pytestmark = pytest.mark.background(HOVER_SIM_8S)
 
 MKFLIGHT = [sys.executable, "-m", "mkflight"]
 NS = 1_000_000_000
@@ -118,10 +123,8 @@ class Folder:
 
 
 @pytest.fixture(scope="session")
-def flight(tmp_path_factory: pytest.TempPathFactory) -> Folder:
-    path = tmp_path_factory.mktemp("export") / "flight"
-    done = _mkflight("fly", "--hover", "--sim", "--duration", "8", "--log-dir", str(path))
-    assert done.returncode == 0, done.stderr
+def flight(background: Background) -> Folder:
+    path: Path = background.result(HOVER_SIM_8S)
     events = read_events(path / "events.jsonl").events
     truth = [line for line in (path / "truth.txt").read_text().splitlines() if line[:1].isdigit()]
     return Folder(

@@ -1,10 +1,11 @@
 """``fly --live``: a simulated flight watched by plain Foxglove WebSocket clients.
 
-One flight (``fly --hover --sim --live``) serves two clients at once: one reads every
-message, the other subscribes to everything and then never reads (a tiny receive
-buffer, a one-message queue). What the first received is checked against the flight
-folder; the flight itself against its own summary: the slow client must cost it
-nothing. The message builders, the feed and the publisher are tested alone below.
+One flight (``fly --hover --sim --live``, flown in the background with its clients:
+:mod:`tests.background`) serves two clients at once: one reads every message, the other
+subscribes to everything and then never reads (a tiny receive buffer, a one-message
+queue). What the first received is checked against the flight folder; the flight itself
+against its own summary: the slow client must cost it nothing. The message builders, the
+feed and the publisher are tested alone below.
 """
 
 from __future__ import annotations
@@ -48,6 +49,9 @@ from mkflight.logs.schema import PhaseChange, Scan, Step
 from mkflight.msgs import Command, Estimate, ImuSample
 from mkflight.msgs import Scan as LaserScanRecord
 from mkflight.urg.units import step_body_angle_rad
+from tests.background import Background, job
+
+pytestmark = pytest.mark.background("live-watched")
 
 MKFLIGHT = [sys.executable, "-m", "mkflight"]
 FLIGHT_S = 8.0
@@ -149,10 +153,16 @@ async def _watch(port: int, folder: Path) -> Watched:
     )
 
 
+@job("live-watched")
+def _watched(base: Path) -> Watched:
+    """The flight and its two clients, in a background worker process's event loop."""
+    return asyncio.run(asyncio.wait_for(_watch(free_port(), base / "flight"), timeout=120))
+
+
 @pytest.fixture(scope="module")
-def watched(tmp_path_factory: pytest.TempPathFactory) -> Watched:
-    folder = tmp_path_factory.mktemp("live") / "flight"
-    return asyncio.run(asyncio.wait_for(_watch(free_port(), folder), timeout=120))
+def watched(background: Background) -> Watched:
+    result: Watched = background.result("live-watched")
+    return result
 
 
 def _events(folder: Path) -> list[Any]:
@@ -593,6 +603,7 @@ class FailsInHold(FakeChannel):
         super().log(message, log_time=log_time)
 
 
+@pytest.mark.realtime  # in this process: once the background flights have ended
 async def test_a_view_that_fails_in_hold_leaves_the_flight_as_it_was(tmp_path: Path) -> None:
     from mkflight.flight.app import FlightApp, FlightOptions
     from mkflight.sim.live import LiveSim

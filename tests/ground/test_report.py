@@ -25,6 +25,11 @@ from typing import Any
 import numpy as np
 import pytest
 
+from tests.background import Background
+from tests.flights import HOVER_SIM_8S
+
+pytestmark = pytest.mark.background(HOVER_SIM_8S)
+
 ROOT = Path(__file__).resolve().parents[2]
 BROWSER_FLAGS = (
     "--headless",
@@ -53,11 +58,9 @@ def _mkflight(*args: str, timeout: float = 180.0) -> subprocess.CompletedProcess
 
 
 @pytest.fixture(scope="module")
-def flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def flight(background: Background) -> Path:
     """One real simulated flight (the daemon on the simulator's ptys), read-only."""
-    folder = tmp_path_factory.mktemp("report") / "flight"
-    done = _mkflight("fly", "--hover", "--sim", "--duration", "8", "--log-dir", str(folder))
-    assert done.returncode == 0, done.stderr
+    folder: Path = background.result(HOVER_SIM_8S)
     return folder
 
 

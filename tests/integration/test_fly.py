@@ -2,21 +2,22 @@
 
 Every scenario is a real flight: ``mkflight sim`` in its own process serves the FC and
 the URG on ptys (with faults scheduled from the daemon's HOLD), and ``mkflight fly`` flies
-them as it would fly hardware. The flights are slow (real time), so the module flies them
-four at a time in one fixture and the tests then read their outcomes: exit code, stderr,
-the flight folder (tables, events, flight.json, raw recordings) and the simulator's truth.
+them as it would fly hardware. The flights are slow (real time), so they are flown in the
+background while the suite's other tests run (:mod:`tests.background`), and the tests then
+read their outcomes: exit code, stderr, the flight folder (tables, events, flight.json, raw
+recordings) and the simulator's truth.
 """
 
 from __future__ import annotations
 
+import functools
 import json
-import queue
 import signal
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,12 +43,12 @@ from mkflight.logs.schema import (
 from mkflight.logs.table3 import read_table3
 from mkflight.logs.table4 import read_table4
 from mkflight.mk.messages import ExternControl
+from tests.background import Background, job
 from tests.integration.recorded import assert_landed_softly, commands_sent
 from tests.limits_check import Counts, assert_within_limits, flown_config
 
 MKFLIGHT = [sys.executable, "-m", "mkflight"]
 FLIGHT_TIMEOUT_S = 150.0
-MAX_AT_ONCE = 4  # flights flown side by side, beside another pytest worker (see _run_all)
 
 
 #: Fault and signal times count from the daemon's HOLD: the simulator's fault clock starts
@@ -84,7 +85,7 @@ class Outcome:
     sigterm_to_exit_s: float | None = None
 
 
-SCENARIOS = [  # the longest first: four fly at a time (see _run_all)
+SCENARIOS = [  # the longest first: they are started in this order (see _fly)
     Scenario("hover60", ["--duration", "60", "--height", "0.6"]),
     Scenario("readme", ["--sim", "--duration", "30"], external=False),
     Scenario("sigterm", [], sigterm_in_hold_s=9.0),
@@ -153,102 +154,86 @@ def _read_to_end(proc: subprocess.Popen[str], on_hold: Callable[[], None]) -> tu
     return "".join(out), "".join(err)
 
 
-def _run_all(base: Path) -> dict[str, Outcome]:
-    """Fly every scenario, at most ``MAX_AT_ONCE`` at a time; return their outcomes.
+def _fly(sc: Scenario, base: Path) -> Outcome:
+    """Fly ``sc`` in real time (a background job: :mod:`tests.background` flies
+    :data:`~tests.background.AT_ONCE` at a time, beside the other tests); its outcome.
 
-    Each flight is a simulator and a daemon in real time, plus the daemon's matcher
-    process, which runs niced: nine at once on two cores starved a matcher of CPU for
-    300 ms now and then (a laser_stale landing, twice in six runs), so a new flight starts
-    when one ends; four at once, since the suite's other worker runs tests beside them. A
-    thread per flight reads its output to its exit and reports it on a queue the main
-    thread blocks on; the HOLD line starts the simulator's fault clock (SIGUSR1) and the
-    SIGTERM timer. Nothing polls or sleeps.
+    A simulator and a daemon, plus the daemon's matcher process, which runs niced: nine
+    flights at once on two cores starved a matcher of CPU for 300 ms now and then (a
+    laser_stale landing, twice in six runs), so a new flight starts when one ends. This
+    thread reads the daemon's stderr to its exit; the HOLD line starts the simulator's
+    fault clock (SIGUSR1) and the SIGTERM timer. Nothing polls or sleeps.
     """
+    folder = base / sc.name
+    sim: subprocess.Popen[str] | None = None
+    logs = ["--log-level", "info"] if sc.armed_at_hold else []
+    args = [*MKFLIGHT, *logs, "fly", "--hover", "--log-dir", str(folder), "--json"]
+    args += sc.fly_args
+    if sc.external:
+        folder.mkdir(parents=True)
+        sim_args = [*MKFLIGHT, "sim", "--truth", str(folder / "truth.txt")]
+        sim_args += ["--faults-on-sigusr1"] if sc.faults else []
+        for f in sc.faults:
+            sim_args += ["--fault", f]
+        sim = subprocess.Popen(sim_args, stdout=subprocess.PIPE, text=True)
+        mk, laser = _read_paths(sim)
+        args += ["--mk-port", mk, "--laser-port", laser]
     t0 = time.monotonic()
-    term_sent: dict[str, float] = {}
+    fly = subprocess.Popen(
+        args,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        stdin=subprocess.DEVNULL,
+    )
+    term_sent: list[float] = []
     timers: list[threading.Timer] = []
-    sims: dict[str, subprocess.Popen[str] | None] = {}
-    finished: dict[str, tuple[int, str, str, float]] = {}
-    done_q: queue.Queue[str] = queue.Queue()
 
-    def wait(name: str, proc: subprocess.Popen[str], on_hold: Callable[[], None]) -> None:
-        killer = threading.Timer(FLIGHT_TIMEOUT_S, proc.kill)
-        killer.start()
-        out, err = _read_to_end(proc, on_hold)
+    def term() -> None:
+        if fly.poll() is None:
+            term_sent.append(time.monotonic())
+            fly.send_signal(signal.SIGTERM)
+
+    def on_hold() -> None:
+        if sim is not None and sc.faults:
+            sim.send_signal(signal.SIGUSR1)
+        if sc.sigterm_in_hold_s is not None:
+            timer = threading.Timer(sc.sigterm_in_hold_s, term)
+            timer.start()
+            timers.append(timer)
+
+    killer = threading.Timer(FLIGHT_TIMEOUT_S, fly.kill)
+    killer.start()
+    try:
+        out, err = _read_to_end(fly, on_hold)
+    finally:
         killer.cancel()
-        finished[name] = (proc.returncode, out, err, time.monotonic())
-        done_q.put(name)
-
-    def start(sc: Scenario) -> None:
-        folder = base / sc.name
-        sim: subprocess.Popen[str] | None = None
-        logs = ["--log-level", "info"] if sc.armed_at_hold else []
-        args = [*MKFLIGHT, *logs, "fly", "--hover", "--log-dir", str(folder), "--json"]
-        args += sc.fly_args
-        if sc.external:
-            folder.mkdir(parents=True)
-            sim_args = [*MKFLIGHT, "sim", "--truth", str(folder / "truth.txt")]
-            sim_args += ["--faults-on-sigusr1"] if sc.faults else []
-            for f in sc.faults:
-                sim_args += ["--fault", f]
-            sim = subprocess.Popen(sim_args, stdout=subprocess.PIPE, text=True)
-            mk, laser = _read_paths(sim)
-            args += ["--mk-port", mk, "--laser-port", laser]
-        fly = subprocess.Popen(
-            args,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            stdin=subprocess.DEVNULL,
-        )
-        sims[sc.name] = sim
-
-        def term() -> None:
-            if fly.poll() is None:
-                term_sent[sc.name] = time.monotonic()
-                fly.send_signal(signal.SIGTERM)
-
-        def on_hold() -> None:
-            if sim is not None and sc.faults:
-                sim.send_signal(signal.SIGUSR1)
-            if sc.sigterm_in_hold_s is not None:
-                timer = threading.Timer(sc.sigterm_in_hold_s, term)
-                timer.start()
-                timers.append(timer)
-
-        threading.Thread(target=wait, args=(sc.name, fly, on_hold)).start()
-
-    pending = list(SCENARIOS)
-    running = 0
-    while pending or running:
-        while pending and running < MAX_AT_ONCE:
-            start(pending.pop(0))
-            running += 1
-        name = done_q.get()  # a flight ended: its simulator goes, the next one starts
-        running -= 1
-        sim = sims[name]
-        if sim is not None:
+        for timer in timers:
+            timer.cancel()
+        if sim is not None:  # the flight ended: its simulator goes
             sim.send_signal(signal.SIGTERM)
             sim.communicate(timeout=10)
-    outcomes: dict[str, Outcome] = {}
-    for sc in SCENARIOS:
-        code, out, err, done = finished[sc.name]
-        outcomes[sc.name] = Outcome(
-            code=code,
-            stdout=out,
-            stderr=err,
-            folder=base / sc.name,
-            wall_s=done - t0,
-            sigterm_to_exit_s=done - term_sent[sc.name] if sc.name in term_sent else None,
-        )
-    for timer in timers:
-        timer.cancel()
-    return outcomes
+    done = time.monotonic()
+    return Outcome(
+        code=fly.returncode,
+        stdout=out,
+        stderr=err,
+        folder=folder,
+        wall_s=done - t0,
+        sigterm_to_exit_s=done - term_sent[0] if term_sent else None,
+    )
+
+
+for _sc in SCENARIOS:
+    job(f"fly/{_sc.name}")(functools.partial(_fly, _sc))
+
+pytestmark = pytest.mark.background(*(f"fly/{sc.name}" for sc in SCENARIOS))
 
 
 @pytest.fixture(scope="module")
-def flights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Outcome]:
-    return _run_all(tmp_path_factory.mktemp("flights"))
+def flights(background: Background) -> Mapping[str, Outcome]:
+    """Each scenario's outcome, by name (waited for when a test first reads it)."""
+    return background.results({sc.name: f"fly/{sc.name}" for sc in SCENARIOS})
 
 
 def _counts(cmds: list[ExternControl]) -> list[Counts]:
@@ -281,7 +266,7 @@ def _truth(folder: Path) -> np.ndarray:
     return np.loadtxt(folder / "truth.txt", skiprows=1, ndmin=2)
 
 
-def test_readme_command_flies_and_leaves_a_complete_folder(flights: dict[str, Outcome]) -> None:
+def test_readme_command_flies_and_leaves_a_complete_folder(flights: Mapping[str, Outcome]) -> None:
     o = flights["readme"]
     assert o.code == 0, o.stderr
     for name in (
@@ -306,7 +291,7 @@ def test_readme_command_flies_and_leaves_a_complete_folder(flights: dict[str, Ou
     assert source == ConfigSource(file=None, found_by="default", overrides=())
 
 
-def test_external_ptys_hover_precision_rates_and_columns(flights: dict[str, Outcome]) -> None:
+def test_external_ptys_hover_precision_rates_and_columns(flights: Mapping[str, Outcome]) -> None:
     """60 s against a simulator that is another process: truth std x, y <= 3 cm, z <= 1 cm;
     TABLE IV at 20 Hz and TABLE III at 10 Hz (+-10 %), 14 and 10 columns."""
     o = flights["hover60"]
@@ -339,7 +324,9 @@ def test_external_ptys_hover_precision_rates_and_columns(flights: dict[str, Outc
     assert_landed_softly(o.folder)
 
 
-def test_sigterm_soft_lands_releases_and_exits_0_within_10_s(flights: dict[str, Outcome]) -> None:
+def test_sigterm_soft_lands_releases_and_exits_0_within_10_s(
+    flights: Mapping[str, Outcome],
+) -> None:
     o = flights["sigterm"]
     assert o.code == 0, o.stderr
     assert o.sigterm_to_exit_s is not None
@@ -352,7 +339,7 @@ def test_sigterm_soft_lands_releases_and_exits_0_within_10_s(flights: dict[str, 
 
 
 def test_fc_vanishing_exits_1_with_a_clear_line_and_intact_logs(
-    flights: dict[str, Outcome],
+    flights: Mapping[str, Outcome],
 ) -> None:
     o = flights["fc_vanish"]
     assert o.code == 1
@@ -365,7 +352,7 @@ def test_fc_vanishing_exits_1_with_a_clear_line_and_intact_logs(
     assert_within_limits(_counts(commands_sent(o.folder)), flown_config(o.folder))
 
 
-def test_laser_stall_lands_by_failsafe(flights: dict[str, Outcome]) -> None:
+def test_laser_stall_lands_by_failsafe(flights: Mapping[str, Outcome]) -> None:
     o = flights["laser_stall"]
     assert o.code == 0, o.stderr
     assert "laser_stale" in _causes(o.folder)
@@ -376,7 +363,7 @@ def test_laser_stall_lands_by_failsafe(flights: dict[str, Outcome]) -> None:
 
 
 def test_garbage_and_crc_errors_are_counted_and_the_flight_goes_on(
-    flights: dict[str, Outcome],
+    flights: Mapping[str, Outcome],
 ) -> None:
     o = flights["garbage"]
     assert o.code == 0, o.stderr
@@ -394,7 +381,7 @@ def test_garbage_and_crc_errors_are_counted_and_the_flight_goes_on(
     assert_landed_softly(o.folder)
 
 
-def test_low_battery_lands(flights: dict[str, Outcome]) -> None:
+def test_low_battery_lands(flights: Mapping[str, Outcome]) -> None:
     o = flights["battery"]
     assert o.code == 0, o.stderr
     causes = _causes(o.folder)
@@ -404,7 +391,7 @@ def test_low_battery_lands(flights: dict[str, Outcome]) -> None:
     assert_landed_softly(o.folder)
 
 
-def test_a_pilot_moving_a_stick_gets_control_at_once(flights: dict[str, Outcome]) -> None:
+def test_a_pilot_moving_a_stick_gets_control_at_once(flights: Mapping[str, Outcome]) -> None:
     """The FC's 'P' answer shows the nick stick moved: released at once, for good."""
     o = flights["pilot"]
     assert o.code == 0, o.stderr
@@ -419,7 +406,7 @@ def test_a_pilot_moving_a_stick_gets_control_at_once(flights: dict[str, Outcome]
     assert all(int(c.config) == 0 for c in cmds[last_engaged + 1 :])
 
 
-def test_laser_unplugged_and_back_is_reopened_while_landing(flights: dict[str, Outcome]) -> None:
+def test_laser_unplugged_and_back_is_reopened_while_landing(flights: Mapping[str, Outcome]) -> None:
     """The URG's USB cable out for 1 s (it restarts when powered again): the daemon reports
     it, lands on the stale laser, reopens the port and ends released, exit 0."""
     o = flights["laser_unplug"]
@@ -455,7 +442,7 @@ def test_usage_errors(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("name", [sc.name for sc in SCENARIOS])
 def test_every_recorded_flight_replays_byte_for_byte(
-    flights: dict[str, Outcome], name: str, tmp_path: Path
+    flights: Mapping[str, Outcome], name: str, tmp_path: Path
 ) -> None:
     """Issue 9's determinism check on every scenario above, faults included: the recorded
     bytes through ptys into the daemon on the lock-step clock reproduce each ExternControl
@@ -472,7 +459,7 @@ def test_every_recorded_flight_replays_byte_for_byte(
 
 
 def test_the_sticks_are_asked_for_twice_a_second_right_behind_a_command(
-    flights: dict[str, Outcome],
+    flights: Mapping[str, Outcome],
 ) -> None:
     """The 'p' request never takes the wire in front of a command: each one follows an
     ExternControl, about every 0.5 s of the flight."""

@@ -16,6 +16,8 @@ import socket
 import tempfile
 from pathlib import Path
 
+import pytest
+
 from mkflight.config import Config
 from mkflight.control.phases import Phase
 from mkflight.flight.app import FlightApp, FlightOptions
@@ -28,6 +30,10 @@ from mkflight.msgs import ImuSample
 from mkflight.sim.live import LiveSim
 from tests.integration.recorded import assert_landed_softly, commands_sent
 from tests.limits_check import assert_within_limits, flown_config
+
+#: Real-time flights in this process, whose main thread runs below the background
+#: flights' priority: they run once those have ended (tests/background.py).
+pytestmark = pytest.mark.realtime
 
 
 class HoldFault:

@@ -1,7 +1,8 @@
 """``mkflight replay`` end to end: a recorded simulated flight played back.
 
-One real flight (``fly --hover --sim``) is recorded per module; the tests replay it, and
-damaged copies of it, through the CLI and through :func:`replay_flight`.
+One real flight (``fly --hover --sim``) is recorded per session (a background flight, as
+are a killed one and one on a slow board: :mod:`tests.background`); the tests replay it,
+and damaged copies of it, through the CLI and through :func:`replay_flight`.
 """
 
 from __future__ import annotations
@@ -20,6 +21,9 @@ from mkflight.logs.flight import extern_control_frames
 from mkflight.logs.raw import read_raw
 from mkflight.logs.table4 import read_table4
 from mkflight.replay.run import replay_flight
+from tests.background import Background, job
+
+pytestmark = pytest.mark.background("replay-hover-10s")
 
 MKFLIGHT = [sys.executable, "-m", "mkflight"]
 
@@ -35,11 +39,17 @@ def _mkflight(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess
     )
 
 
-@pytest.fixture(scope="module")
-def flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    folder = tmp_path_factory.mktemp("rec") / "flight"
+@job("replay-hover-10s")
+def _fly_10s(base: Path) -> Path:
+    folder = base / "flight"
     done = _mkflight("fly", "--hover", "--sim", "--duration", "10", "--log-dir", str(folder))
     assert done.returncode == 0, done.stderr
+    return folder
+
+
+@pytest.fixture(scope="module")
+def flight(background: Background) -> Path:
+    folder: Path = background.result("replay-hover-10s")
     return folder
 
 
@@ -241,10 +251,10 @@ def test_a_paced_replay_is_as_exact_and_not_faster_than_asked(flight: Path, tmp_
     assert r.wall_s >= 0.95 * r.recorded_s / 40.0
 
 
-def test_a_killed_flight_replays_up_to_where_its_recording_ends(tmp_path: Path) -> None:
-    """SIGKILL mid-flight: no summary, no release in the recording. The replay reproduces
-    every recorded frame; what it sends after the recording ended is not held against it."""
-    folder = tmp_path / "killed"
+@job("replay-killed")
+def _fly_and_kill(base: Path) -> Path:
+    """A 30 s flight SIGKILLed 10 s after its start (in its hold: the pre-flight takes ~2 s)."""
+    folder = base / "killed"
     proc = subprocess.Popen(
         [*MKFLIGHT, "fly", "--hover", "--sim", "--duration", "30", "--log-dir", str(folder)],
         stdout=subprocess.DEVNULL,
@@ -252,9 +262,19 @@ def test_a_killed_flight_replays_up_to_where_its_recording_ends(tmp_path: Path) 
         stdin=subprocess.DEVNULL,
     )
     with pytest.raises(subprocess.TimeoutExpired):
-        proc.wait(timeout=10.0)  # into the flight (the pre-flight takes ~2 s)
+        proc.wait(timeout=10.0)  # into the flight
     proc.kill()
     proc.wait()
+    return folder
+
+
+@pytest.mark.background("replay-killed")
+def test_a_killed_flight_replays_up_to_where_its_recording_ends(
+    background: Background, tmp_path: Path
+) -> None:
+    """SIGKILL mid-flight: no summary, no release in the recording. The replay reproduces
+    every recorded frame; what it sends after the recording ended is not held against it."""
+    folder: Path = background.result("replay-killed")
     r = replay_flight(folder, tmp_path / "r")
     c = r.commands
     assert c.n_original > 50
@@ -324,12 +344,9 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
-def test_a_flight_whose_loop_stalled_at_ready_replays_byte_for_byte(tmp_path: Path) -> None:
-    """The stall leaves the last scan 0.4 s old at READY; in flight the matcher's round
-    trip let a new scan arrive before the laser task asked again. The replay gives each
-    result at its recorded time, so it does not restart a 'stalled' stream the flight
-    never restarted (found by review: 2 of 2 runs failed before)."""
-    folder = tmp_path / "slow"
+@job("replay-slow-board")
+def _fly_slow_board(base: Path) -> Path:
+    folder = base / "slow"
     args = ["fly", "--hover", "--sim", "--duration", "10", "--log-dir", str(folder)]
     fly = subprocess.run(
         [sys.executable, "-c", SLOW_BOARD, *args],
@@ -340,6 +357,18 @@ def test_a_flight_whose_loop_stalled_at_ready_replays_byte_for_byte(tmp_path: Pa
         check=False,
     )
     assert fly.returncode == 0, fly.stderr
+    return folder
+
+
+@pytest.mark.background("replay-slow-board")
+def test_a_flight_whose_loop_stalled_at_ready_replays_byte_for_byte(
+    background: Background, tmp_path: Path
+) -> None:
+    """The stall leaves the last scan 0.4 s old at READY; in flight the matcher's round
+    trip let a new scan arrive before the laser task asked again. The replay gives each
+    result at its recorded time, so it does not restart a 'stalled' stream the flight
+    never restarted (found by review: 2 of 2 runs failed before)."""
+    folder: Path = background.result("replay-slow-board")
     r = replay_flight(folder, tmp_path / "r")
     assert r.commands.identical, r.commands.first
     assert r.deterministic

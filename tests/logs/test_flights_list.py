@@ -16,6 +16,9 @@ import pytest
 from mkflight.analysis.precision import hold_samples, parse_truth, precision, with_truth
 from mkflight.logs import read_events
 from mkflight.logs.flight_list import FIELDS
+from tests.flights import HOVER_SIM_8S
+
+pytestmark = pytest.mark.background(HOVER_SIM_8S)
 
 MKFLIGHT = [sys.executable, "-m", "mkflight"]
 

@@ -26,6 +26,9 @@ from mkflight.scanmatch.log_tracking import (
 from mkflight.scanmatch.trajectory import read_trajectory
 from mkflight.sim.room import raycast
 from mkflight.sim.world import default_room
+from tests.flights import HOVER_SIM_8S
+
+pytestmark = pytest.mark.background(HOVER_SIM_8S)  # sim_flight
 
 
 def _scanmatch(log: Path, out: Path) -> tuple[np.ndarray, np.ndarray]:

@@ -17,6 +17,9 @@ from mkflight.logs.scans import ScanLog, decode_scans, read_scans
 from mkflight.logs.schema import UNSET, FlightSummary, Scan
 from mkflight.sim.room import raycast
 from mkflight.sim.world import default_room
+from tests.flights import HOVER_SIM_8S
+
+pytestmark = pytest.mark.background(HOVER_SIM_8S)  # sim_flight
 
 
 def _nan(value: float | None) -> float:

@@ -29,6 +29,9 @@ from hypothesis import strategies as st
 
 from mkflight.errors import ReplayError
 from mkflight.logs import load_flight
+from tests.background import Background, job
+
+pytestmark = pytest.mark.background("damaged-hover-10s")
 
 PY = sys.executable
 #: Longer than any of these commands takes on a loaded CI machine; a hang is far beyond it.
@@ -51,10 +54,9 @@ def _run(*args: str) -> subprocess.CompletedProcess[str]:
         pytest.fail(f"hung: {' '.join(args)} did not end within {HARD_TIMEOUT_S:g} s")
 
 
-@pytest.fixture(scope="module")
-def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
+@job("damaged-hover-10s")
+def _fly_on_ptys(base: Path) -> Path:
     """A 10 s hover flown on real ptys against ``mkflight sim`` (as on hardware)."""
-    base = tmp_path_factory.mktemp("damaged")
     folder = base / "flight"
     sim = subprocess.Popen(
         [PY, "-m", "mkflight", "sim", "--truth", str(base / "truth.txt"), "--seed", "5"],
@@ -82,6 +84,13 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
         sim.send_signal(signal.SIGTERM)
         sim.wait(timeout=30)
     assert fly.returncode == 0, fly.stderr
+    return folder
+
+
+@pytest.fixture(scope="module")
+def recorded(background: Background) -> Path:
+    """The background flight ``damaged-hover-10s`` (read-only: each test damages a copy)."""
+    folder: Path = background.result("damaged-hover-10s")
     return folder
 
 

@@ -7,14 +7,15 @@ from pathlib import Path
 
 import pytest
 
-from tests.security.helpers import mkflight
+from tests.background import Background
+from tests.flights import HOVER_SIM_1S
 
 
 @pytest.fixture(scope="session")
-def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    folder = tmp_path_factory.mktemp("recorded") / "flight"
-    done = mkflight("fly", "--hover", "--sim", "--duration", "1", "--log-dir", str(folder))
-    assert done.returncode == 0, done.stderr
+def recorded(background: Background) -> Path:
+    """The background flight :data:`~tests.flights.HOVER_SIM_1S` (a module whose tests read
+    it, through ``flight`` too, is marked so)."""
+    folder: Path = background.result(HOVER_SIM_1S)
     return folder
 
 

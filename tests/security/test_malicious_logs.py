@@ -23,7 +23,10 @@ from typing import Any
 import pytest
 
 from mkflight.replay.vloop import MAX_T_NS
+from tests.flights import HOVER_SIM_1S
 from tests.security.helpers import error_lines, mkflight, one_error
+
+pytestmark = pytest.mark.background(HOVER_SIM_1S)  # recorded, flight
 
 Event = dict[str, Any]
 

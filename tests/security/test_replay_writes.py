@@ -19,7 +19,10 @@ from pathlib import Path
 import pytest
 
 from mkflight.logs.raw import read_raw
+from tests.flights import HOVER_SIM_1S
 from tests.security.helpers import mkflight, one_error, tree
+
+pytestmark = pytest.mark.background(HOVER_SIM_1S)  # recorded, flight
 
 Tree = dict[str, tuple[str, bytes | str]]
 _HEADER = struct.Struct("<8sHHqq")  # mk.raw: magic, version, label length, start times

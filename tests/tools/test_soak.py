@@ -1,9 +1,10 @@
 """tools/soak.py on a short flight: the report's plumbing, not the machine's timing.
 
 One real-time flight of 0.4 min (the daemon in the tool's process, the simulator in its
-child, on ptys) as a subprocess; the assertions are about the report being complete and
-self-consistent. Missed steps are not asserted absent: under a loaded CI machine a late
-DebugOut is the machine's, and the tool's exit code then says 1 by design.
+child, on ptys) as a subprocess, flown in the background (:mod:`tests.background`); the
+assertions are about the report being complete and self-consistent. Missed steps are not
+asserted absent: under a loaded CI machine a late DebugOut is the machine's, and the tool's
+exit code then says 1 by design.
 """
 
 from __future__ import annotations
@@ -16,13 +17,17 @@ from typing import Any
 
 import pytest
 
+from tests.background import Background, job
+
+pytestmark = pytest.mark.background("soak")
+
 SOAK = Path(__file__).resolve().parents[2] / "tools" / "soak.py"
 MINUTES = 0.4
 
 
-@pytest.fixture(scope="module")
-def soak(tmp_path_factory: pytest.TempPathFactory) -> tuple[int, str, dict[str, Any]]:
-    out = tmp_path_factory.mktemp("soak") / "soak.json"
+@job("soak")
+def _soak(base: Path) -> tuple[int, str, dict[str, Any]]:
+    out = base / "soak.json"
     proc = subprocess.run(
         # The worker process (not the default inline matcher): its memory is reported too.
         [
@@ -37,6 +42,12 @@ def soak(tmp_path_factory: pytest.TempPathFactory) -> tuple[int, str, dict[str, 
     )
     assert proc.returncode in (0, 1), proc.stderr[-2000:]
     return proc.returncode, proc.stdout, json.loads(out.read_text())
+
+
+@pytest.fixture(scope="module")
+def soak(background: Background) -> tuple[int, str, dict[str, Any]]:
+    result: tuple[int, str, dict[str, Any]] = background.result("soak")
+    return result
 
 
 def test_the_flight_holds_for_the_duration_and_lands_with_exit_0(
