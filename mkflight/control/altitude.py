@@ -111,6 +111,16 @@ def hover_feedforward(
     return control.hover_gas * ratio / tilt
 
 
+def _climb_rate(kd: float, prev_mps: float | None, vz_up_mps: float, dt_s: float) -> float | None:
+    """The D term's rate of the speed, over at least ``MIN_DERIVATIVE_DT_S``.
+
+    None: the PID's own derivative over ``dt_s`` (a step that long, or the first one).
+    """
+    if kd != 0.0 and prev_mps is not None and 0.0 < dt_s < MIN_DERIVATIVE_DT_S:
+        return (vz_up_mps - prev_mps) / MIN_DERIVATIVE_DT_S
+    return None
+
+
 def altitude_step(
     control: ControlConfig,
     state: AltitudeState,
@@ -169,17 +179,13 @@ def altitude_step(
         battery_ratio_limits=battery_ratio_limits,
     )
     gains = climb_gains(control)
-    prev = state.climb.prev_measurement
-    rate = None  # the PID's own derivative over dt_s
-    if gains.kd != 0.0 and prev is not None and 0.0 < dt_s < MIN_DERIVATIVE_DT_S:
-        rate = (vz_up_mps - prev) / MIN_DERIVATIVE_DT_S
     inner = pid_update(
         gains,
         state.climb,
         error=climb_sp - vz_up_mps,
         measurement=vz_up_mps,
         dt_s=dt_s,
-        rate=rate,
+        rate=_climb_rate(gains.kd, state.climb.prev_measurement, vz_up_mps, dt_s),
         feedforward=gas_ff,
     )
     if not inner.valid:
