@@ -381,39 +381,51 @@ class Estimator:
         if pose is None:
             self.on_height(t_ns, height_m)
             return
-        after = None if height_m is None else self._joint_scan(pose, t_ns, height_m)
-        if height_m is None or after is None:
+        joint = None if height_m is None else self._joint_scan(pose, t_ns, height_m)
+        if height_m is None or joint is None:
             self.on_pose(pose)
             self.on_height(t_ns, height_m)
             return
-        saved = list(self._knots)
-        if after >= 0:
-            self._knots.insert(after + 1, _between(saved[after], saved[after + 1], t_ns))
+        ks = self._knots
+        saved = list(ks)
+        a, bare = joint
+        if bare:  # the replay computes its state from its predecessor
+            ks.insert(a, _between(saved[a - 1], saved[a], t_ns))
         before = (self._yaw_offset_rad, self._last_pose, self._last_height)
         prev, prev_h = self._last_pose, self._last_height
         vel = None
-        if prev is not None and pose.t_ns - prev.t_ns <= self._max_meas_gap_ns:
+        if prev is not None and t_ns - prev.t_ns <= self._max_meas_gap_ns:
             vel = laser_velocity(prev, pose)
         self._last_pose = pose
-        rate, span_ns = None, 0
+        rate = None
         if prev_h is not None and t_ns - prev_h[0] <= self._max_meas_gap_ns:
-            rate, span_ns = rate_of_change(prev_h[0], prev_h[1], t_ns, height_m), t_ns - prev_h[0]
+            rate = rate_of_change(prev_h[0], prev_h[1], t_ns, height_m)
         self._last_height = (t_ns, height_m)
-        a, compensated = self._set_pose_fix(pose, vel)
-        self._set_height_fix(t_ns, height_m, rate, span_ns)
-        ks = self._knots
-        ks[a] = self._propagate(ks[a - 1], ks[a])  # _kalman_fix's case of a started filter
-        if not self._replay(a, saved):  # restored: judged input by input
+        # _set_pose_fix then _set_height_fix on an anchor in the history, in one knot
+        k = ks[a]
+        self._yaw_offset_rad = wrap_pi(pose.yaw_rad - k.mk_yaw_rad)
+        ks[a] = Knot(
+            k.t_ns, k.acc_l, k.mk_yaw_rad, k.x_m, k.y_m, k.vx_mps, k.vy_mps, height_m,
+            k.vz_up_mps, k.meas_w, rate, (pose.x_m, pose.y_m), height_m, k.res_l, k.z_model,
+            k.kx, k.ky, k.kz, self._cfg.pose_noise_m,
+        )  # fmt: skip
+        for m in range(a + 1, len(ks)):  # this newer scan supersedes later predictions
+            k = ks[m]
+            if k.fix_xy is not None or k.fix_h is not None:
+                ks[m] = msgspec.structs.replace(k, fix_xy=None, fix_h=None)
+        if not self._refilter(a):  # _kalman_fix's case of a started filter, then the replay
+            self._knots = saved  # restored: judged input by input
             self._yaw_offset_rad, self._last_pose, self._last_height = before
             self.on_pose(pose)
             self.on_height(t_ns, height_m)
             return
-        self._laser_step = self._laser_row(pose, vel, compensated)
+        self._laser_step = self._laser_row(pose, vel, self._cfg.latency_compensation)
 
-    def _joint_scan(self, pose: Pose2D, t_ns: int, height_m: float) -> int | None:
-        """Where :meth:`on_scan` may replay once: the knot after which the scan's goes.
+    def _joint_scan(self, pose: Pose2D, t_ns: int, height_m: float) -> tuple[int, bool] | None:
+        """Where :meth:`on_scan` may replay once: the scan's knot's index, and whether it is new.
 
-        None: it may not; -1: the scan's knot exists.
+        None: it may not. The index is the one :meth:`_anchor` finds (after the new knot,
+        if any, is inserted there).
 
         Once: both inputs accepted, on one knot whose predecessor's filter runs in both
         channels (the case of :meth:`_kalman_fix` that recomputes the knot from its
@@ -423,26 +435,29 @@ class Estimator:
         if not (self._kalman and ks and self._height_started and pose.t_ns == t_ns):
             return None
         lim = self._max_abs_position_m
-        if not finite(pose.x_m, pose.y_m, pose.yaw_rad, height_m) or (
-            abs(pose.x_m) > lim or abs(pose.y_m) > lim or abs(height_m) > lim
+        x, y = pose.x_m, pose.y_m
+        # finite(x, y, yaw, height): a sum of finite numbers below the limit cannot overflow
+        if not math.isfinite(x + y + pose.yaw_rad + height_m) or (
+            abs(x) > lim or abs(y) > lim or abs(height_m) > lim
         ):
             return None
         prev, prev_h = self._last_pose, self._last_height
         if (prev is not None and t_ns <= prev.t_ns) or (prev_h is not None and t_ns <= prev_h[0]):
             return None
-        if not self._cfg.latency_compensation or t_ns >= ks[-1].t_ns:
-            j = len(ks) - 1
-        elif t_ns < ks[0].t_ns:
+        j = len(ks) - 1
+        if self._cfg.latency_compensation and t_ns < ks[j].t_ns:
+            if t_ns < ks[0].t_ns:
+                return None
+            j -= 1  # bisect_right - 1 from the end: a scan is a few knots old
+            while ks[j].t_ns > t_ns:
+                j -= 1
+            if ks[j].t_ns != t_ns:  # between two knots: a new one after ks[j]
+                k = ks[j]
+                return None if k.kx is None or k.kz is None else (j + 1, True)
+        if j == 0 or ks[j].kx is None or ks[j].kz is None:  # the anchor is ks[j]
             return None
-        else:
-            j = bisect.bisect_right(ks, t_ns, key=_T_NS) - 1
-        at = ks[j].t_ns == t_ns or j == len(ks) - 1  # the anchor is ks[j]: no new knot
-        if at and (j == 0 or ks[j].kx is None or ks[j].kz is None):
-            return None
-        k = ks[j - 1] if at else ks[j]  # the anchor's predecessor
-        if k.kx is None or k.kz is None:
-            return None
-        return -1 if at else j
+        k = ks[j - 1]  # its predecessor
+        return None if k.kx is None or k.kz is None else (j, False)
 
     def estimate(self, now_ns: int | None = None) -> Estimate:
         """The current estimate in W (SPEC §1); validity judged at ``now_ns`` (default: now)."""
@@ -500,20 +515,33 @@ class Estimator:
         ax, ay = body_to_world(k.acc_l[0] - bx, k.acc_l[1] - by, yaw)
         return ax, ay, (0.0 if k.z_model else b[2]) - k.acc_l[2]
 
+    def _kalman_inputs(self, k: Knot) -> tuple[Vec3, tuple[float, float, float | None] | None]:
+        """The Kalman filter's input at ``k`` in W (:meth:`_model_w`) and its residual there.
+
+        The residual: the accelerometers less their bias, less the model (W, z up); None
+        where none was measured. Both turned by one rotation: the same floats as two.
+        """
+        b = self._bias_l
+        bx, by = (0.0, 0.0) if self._cfg.tilt_acceleration else (b[0], b[1])
+        yaw = k.mk_yaw_rad + (self._yaw_offset_rad or 0.0)
+        c, s = math.cos(yaw), math.sin(yaw)  # frames.body_to_world, twice
+        acc_l, res_l = k.acc_l, k.res_l
+        xb, yb = acc_l[0] - bx, acc_l[1] - by
+        acc_w = (c * xb - s * yb, s * xb + c * yb, (0.0 if k.z_model else b[2]) - acc_l[2])
+        if res_l is None:
+            return acc_w, None
+        xb, yb = res_l[0] - b[0], res_l[1] - b[1]
+        rz = res_l[2]
+        return acc_w, (c * xb - s * yb, s * xb + c * yb, None if rz is None else b[2] - rz)
+
     def _propagate(self, k: Knot, nxt: Knot) -> Knot:
         """``nxt`` with its state stepped from ``k`` by the configured filter."""
         dt = self._dt_s(k.t_ns, nxt.t_ns)
         horizontal = self._yaw_offset_rad is not None
         if self._kalman:
-            res_w = None
-            if nxt.res_l is not None:  # the accelerometers less their bias, less the model
-                b = self._bias_l
-                yaw = nxt.mk_yaw_rad + (self._yaw_offset_rad or 0.0)
-                rx, ry = body_to_world(nxt.res_l[0] - b[0], nxt.res_l[1] - b[1], yaw)
-                rz = nxt.res_l[2]
-                res_w = (rx, ry, None if rz is None else b[2] - rz)
+            next_acc_w, res_w = self._kalman_inputs(nxt)
             return kalman_knot(
-                k, nxt, self._model_w(k), self._model_w(nxt), res_w, dt,
+                k, nxt, self._model_w(k), next_acc_w, res_w, dt,
                 noise_xy=self._noise_xy, noise_z=self._noise_z,
                 height_noise_m=self._cfg.height_noise_m,
                 horizontal=horizontal, vertical=self._height_started,
@@ -523,6 +551,40 @@ class Estimator:
             k_xy=self._k_xy, k_z=self._k_z, carry=self._cfg.latency_compensation,
             horizontal=horizontal, vertical=self._height_started,
         )  # fmt: skip
+
+    def _refilter(self, first: int) -> bool:
+        """Recompute every knot from ``first`` on from its predecessor (:meth:`_propagate`).
+
+        False at the first knot that is not finite: the caller restores the history. The
+        Kalman filter's input at a knot is turned into W once, not once as the step's end
+        and again as the next step's start.
+        """
+        ks = self._knots
+        if not self._kalman:
+            for m in range(first, len(ks)):
+                ks[m] = knot = self._propagate(ks[m - 1], ks[m])
+                if not knot_finite(knot):
+                    return False
+            return True
+        horizontal, vertical = self._yaw_offset_rad is not None, self._height_started
+        noise_xy, noise_z, height_noise_m = self._noise_xy, self._noise_z, self._cfg.height_noise_m
+        max_gap_ns, period_s = self._max_imu_gap_ns, self._cfg.filter_period_s
+        knot = ks[first - 1]
+        acc_w = self._model_w(knot)
+        for m in range(first, len(ks)):
+            nxt = ks[m]
+            next_acc_w, res_w = self._kalman_inputs(nxt)
+            gap_ns = nxt.t_ns - knot.t_ns
+            dt = period_s if gap_ns > max_gap_ns else gap_ns / NS_PER_S  # _dt_s
+            ks[m] = knot = kalman_knot(
+                knot, nxt, acc_w, next_acc_w, res_w, dt,
+                noise_xy=noise_xy, noise_z=noise_z, height_noise_m=height_noise_m,
+                horizontal=horizontal, vertical=vertical,
+            )  # fmt: skip
+            if not knot_finite(knot):
+                return False
+            acc_w = next_acc_w
+        return True
 
     def _anchor(self, t_ns: int) -> int | None:
         """Index of the knot at ``t_ns`` (inserted between two samples if needed).
@@ -556,10 +618,7 @@ class Estimator:
 
     def _replay(self, start: int, saved: list[Knot]) -> bool:
         """Recompute every knot after ``start``; restore ``saved`` if anything is not finite."""
-        ks = self._knots
-        for m in range(start + 1, len(ks)):
-            ks[m] = self._propagate(ks[m - 1], ks[m])
-        if all(knot_finite(k) for k in ks[start:]):
+        if knot_finite(self._knots[start]) and self._refilter(start + 1):
             return True
         self._knots = saved
         return False
@@ -625,10 +684,11 @@ class Estimator:
 
     def _laser_row(self, pose: Pose2D, vel: LaserVelocity | None, compensated: bool) -> LaserStep:
         """The TABLE III values of ``pose`` against the estimate after it."""
-        est = self.estimate()
+        k = self._knots[-1]  # the estimate's velocity and yaw (:meth:`estimate`)
+        yaw = wrap_pi(k.mk_yaw_rad + (self._yaw_offset_rad or 0.0))
         w_vx, w_vy = (math.nan, math.nan) if vel is None else (vel.vx_w_mps, vel.vy_w_mps)
         b_vx, b_vy = world_to_body(w_vx, w_vy, pose.yaw_rad)
-        e_vx, e_vy = world_to_body(est.vx_mps, est.vy_mps, est.yaw_rad)
+        e_vx, e_vy = world_to_body(k.vx_mps, k.vy_mps, yaw)
         return LaserStep(
             pose.t_ns, w_vx, w_vy, b_vx, b_vy, e_vx, e_vy,
             pose.x_m, pose.y_m, pose.yaw_rad, compensated,

@@ -82,7 +82,7 @@ def laser_velocity(prev: Pose2D, cur: Pose2D) -> LaserVelocity | None:
     vx = (cur.x_m - prev.x_m) / dt_s
     vy = (cur.y_m - prev.y_m) / dt_s
     rate = wrap_pi(cur.yaw_rad - prev.yaw_rad) / dt_s
-    if not all(math.isfinite(v) for v in (vx, vy, rate)):
+    if not (math.isfinite(vx) and math.isfinite(vy) and math.isfinite(rate)):  # no generator
         return None
     return LaserVelocity(cur.t_ns, dt_s, vx, vy, rate)
 

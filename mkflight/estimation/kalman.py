@@ -214,9 +214,22 @@ def update_position(s: AxisState, z: float, std: float) -> AxisState:
     """
     var = s.pp + std * std
     innovation = z - s.p
-    if is_jump(innovation, var):
+    gate = JUMP_SIGMAS * math.sqrt(var)  # is_jump and _correct written out: 3 calls a scan
+    if abs(innovation) > (gate if gate > JUMP_M else JUMP_M):
         return AxisState(z, s.v, s.d, std * std, 0.0, 0.0, s.vv, s.vd, s.dd)
-    return _correct(s, innovation, var, (s.pp, s.pv, s.pd))
+    pp, pv, pd = s.pp, s.pv, s.pd  # the row P Hᵀ
+    kp, kv, kd = pp / var, pv / var, pd / var
+    return AxisState(
+        s.p + kp * innovation,
+        s.v + kv * innovation,
+        s.d + kd * innovation,
+        pp - kp * pp,
+        pv - kp * pv,
+        pd - kp * pd,
+        s.vv - kv * pv,
+        s.vd - kv * pd,
+        s.dd - kd * pd,
+    )
 
 
 __all__ = [

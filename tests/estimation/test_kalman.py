@@ -80,6 +80,14 @@ def test_position_update_is_the_kalman_update(s: AxisState, z: float, std: float
     np.testing.assert_allclose(cov(out), (np.eye(3) - k @ hrow) @ p, rtol=1e-9, atol=1e-12)
 
 
+@given(states(), st.floats(-20, 20), st.floats(1e-4, 2.0))
+def test_position_update_resets_exactly_on_a_jump(s: AxisState, z: float, std: float) -> None:
+    """update_position applies is_jump's rule (written out there), on both sides of it."""
+    out = update_position(s, z, std)
+    reset = AxisState(z, s.v, s.d, std * std, 0.0, 0.0, s.vv, s.vd, s.dd)
+    assert (out == reset) is is_jump(z - s.p, s.pp + std * std)
+
+
 @given(states(), st.floats(-0.5, 0.5), stds)
 def test_acceleration_update_is_the_kalman_update(s: AxisState, dr: float, std: float) -> None:
     """Within the gate (a residual near the expectation) it is the textbook update."""

@@ -219,7 +219,7 @@ def test_tables_come_back_exactly_with_their_seed_column_names(folder: Path) -> 
     assert f.imu.dtype.names == T4_COLUMNS
     assert f.laser.dtype.names == T3_COLUMNS
     assert _same(f.imu.tolist(), [astuple(r) for r in T4_ROWS])
-    assert _same(f.laser.tolist(), [astuple(r) for r in T3_ROWS])
+    assert _same(f.laser.tolist(), [msgspec.structs.astuple(r) for r in T3_ROWS])
     assert f.imu["ControlPitch"].tolist() == [-3, 127, 0]
     assert f.laser["W_Vel.x"].tolist() == [0.012, 0.5]
     assert math.isnan(f.laser["CurrentPosition.theta"][1])
