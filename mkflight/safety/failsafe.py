@@ -31,12 +31,13 @@ pilot moves sticks / RC switch                   PILOT_OVERRIDE -> RELEASE at on
 
 The laser's two causes are not raised while a latched cause already demands LAND or more:
 their whole timeline (LEVEL_HOLD, then LAND) can never exceed it, so they would change
-nothing the vehicle does, and near the floor the scan is not a health signal. A landing's
-last 0.1-0.15 m put the tilted scan plane on the floor 1-2 m out (sensor 0.1 m up, tilt
-0.05-0.17 rad), more than one attitude per 70 ms sweep levels away (the landing's
-attitude turns at 0.5-2 rad/s): those scans fail or go degenerate, and a landing that
-touched down softly ended with a laser failsafe in its list. A cause raised before the
-landing stays latched and escalates as before; the scans themselves are in ``scan`` events.
+nothing the vehicle does, and near the floor the scan is not a health signal. In a
+landing's last 0.2 m the sensor is 0.05-0.25 m above the floor and a tilt of 0.05-0.17 rad
+puts the scan plane on the floor 1-2 m out; one attitude per 70 ms sweep, while the
+landing's attitude turns at 0.5-2 rad/s, does not level those beams well enough for the
+pipeline's floor filter, so such scans fail or go degenerate while the landing goes on as
+it should. A cause raised before the landing stays latched and escalates as before; the
+scans themselves are in the ``scan`` events.
 
 Timed escalations run on the cause's own clock from the moment it was raised (latched:
 a laser that comes back after 0.4 s still lands at 1 s). Ages that are NaN count as stale.
