@@ -18,6 +18,7 @@ NaN/inf in estimate or command (this step)       NONFINITE -> WARN; ``use_last_c
 laser pose older than ``laser_stale_s``          LASER_STALE -> LEVEL_HOLD, LAND after
                                                  ``degenerate_land_s``
 scan match degenerate                            SCAN_DEGENERATE -> same as LASER_STALE
+                                                 (neither raised while LAND is latched)
 no DebugOut for ``mk_stale_s``/``mk_release_s``  none here: the link re-subscribes, then
                                                  releases (see below)
 outside ``+-box_m`` of home / above max height   OUT_OF_BOX / ABOVE_MAX_HEIGHT -> HOLD, LAND
@@ -27,6 +28,16 @@ SIGINT / SIGTERM / --duration / task crash       STOP_* -> LAND (the phases rele
                                                  landing; the app exits 0, or 1 on a crash)
 pilot moves sticks / RC switch                   PILOT_OVERRIDE -> RELEASE at once
 ===============================================  ==========================================
+
+The laser's two causes are not raised while a latched cause already demands LAND or more:
+their whole timeline (LEVEL_HOLD, then LAND) can never exceed it, so they would change
+nothing the vehicle does, and near the floor the scan is not a health signal. In a
+landing's last 0.2 m the sensor is 0.05-0.25 m above the floor and a tilt of 0.05-0.17 rad
+puts the scan plane on the floor 1-2 m out; one attitude per 70 ms sweep, while the
+landing's attitude turns at 0.5-2 rad/s, does not level those beams well enough for the
+pipeline's floor filter, so such scans fail or go degenerate while the landing goes on as
+it should. A cause raised before the landing stays latched and escalates as before; the
+scans themselves are in the ``scan`` events.
 
 Timed escalations run on the cause's own clock from the moment it was raised (latched:
 a laser that comes back after 0.4 s still lands at 1 s). Ages that are NaN count as stale.
@@ -242,11 +253,12 @@ class Failsafe:
             active.append((Cause.NONFINITE, f"{self._nonfinite_steps} step(s)"))
             if self._nonfinite_steps >= s.nonfinite_land_steps:
                 active.append((Cause.NONFINITE_REPEATED, f"{self._nonfinite_steps} steps"))
-        # Row 2: laser stale or degenerate.
-        if _stale(inp.laser_age_s, s.laser_stale_s):
-            active.append((Cause.LASER_STALE, f"pose age {inp.laser_age_s:.3f} s"))
-        if inp.scan_degenerate:
-            active.append((Cause.SCAN_DEGENERATE, "scan match degenerate"))
+        # Row 2: laser stale or degenerate; not raised once the vehicle is landing anyway.
+        if self.action < FailsafeAction.LAND:
+            if _stale(inp.laser_age_s, s.laser_stale_s):
+                active.append((Cause.LASER_STALE, f"pose age {inp.laser_age_s:.3f} s"))
+            if inp.scan_degenerate:
+                active.append((Cause.SCAN_DEGENERATE, "scan match degenerate"))
         # Row 3 (MK data stale) is the link's: see the module docstring.
         # Row 4: geofence.
         dx, dy = inp.x_m - self.home_x_m, inp.y_m - self.home_y_m

@@ -233,6 +233,9 @@ def test_latched_action_never_decreases(steps: list[dict[str, object]]) -> None:
     for kw in steps:
         out = r.step(**kw)
         assert out.action >= prev
+        raised = {e.cause for e in out.events if e.action is A.LEVEL_HOLD}
+        if prev >= A.LAND:  # a landing keeps the laser's causes out
+            assert not raised & {Cause.LASER_STALE, Cause.SCAN_DEGENERATE}
         assert out.action == max((a for _, a in out.causes), default=A.NONE)
         for cause, action in out.causes:
             assert action >= seen.get(cause, A.NONE)
@@ -240,3 +243,52 @@ def test_latched_action_never_decreases(steps: list[dict[str, object]]) -> None:
         assert set(seen) == {c for c, _ in out.causes}
         assert math.isnan(out.battery_filtered_v) or math.isfinite(out.battery_filtered_v)
         prev = out.action
+
+
+def test_a_laser_cause_in_a_landing_is_not_raised() -> None:
+    """A recorded touchdown (hover, ``--duration 20``): the stop lands the vehicle, and at
+    0.06-0.03 m the tilted scan plane meets the floor: the scans 1.3 s later fail (invalid,
+    degenerate, invalid), the pose ages past ``laser_stale_s`` while it touches down. The
+    landing goes on as it was: only the stop is in the list."""
+    r = Run()
+    r.steps(20, height_m=0.6)
+    r.step(height_m=0.6, stop=StopRequest.DURATION)
+    out = r.steps(26, height_m=0.05)  # 1.3 s of descent, poses fresh
+    out = r.step(height_m=0.03, scan_degenerate=True)
+    out = r.steps(3, height_m=0.0, laser_age_s=0.35)
+    assert out.action is A.LAND
+    assert r.events == [(A.LAND, Cause.STOP_DURATION)]
+    assert [c for c, _ in out.causes] == [Cause.STOP_DURATION]
+
+
+@pytest.mark.parametrize("bad", [{"laser_age_s": 1.0}, {"scan_degenerate": True}])
+def test_a_laser_cause_raised_before_the_landing_stays_and_escalates(
+    bad: dict[str, object],
+) -> None:
+    r = Run()
+    r.step(**bad)
+    r.step(stop=StopRequest.SIGTERM, **bad)
+    out = r.steps(round(S.degenerate_land_s * 1e9 / STEP_NS), **bad)
+    cause = Cause.LASER_STALE if "laser_age_s" in bad else Cause.SCAN_DEGENERATE
+    assert (A.LEVEL_HOLD, cause) in r.events
+    assert (A.LAND, cause) in r.events
+    assert dict(out.causes)[cause] is A.LAND
+
+
+@pytest.mark.parametrize("action_cause", [{"stop": StopRequest.SIGINT}, {"battery_v": 9.0}])
+def test_a_laser_cause_after_any_land_is_not_raised(action_cause: dict[str, object]) -> None:
+    r = Run()
+    r.steps(5, **action_cause)
+    assert r.fs.action is A.LAND
+    out = r.steps(40, laser_age_s=math.inf, scan_degenerate=True)
+    assert not {Cause.LASER_STALE, Cause.SCAN_DEGENERATE} & {c for c, _ in out.causes}
+    assert out.action is A.LAND
+
+
+def test_a_laser_cause_below_land_is_raised_as_before() -> None:
+    """An out-of-box HOLD (below LAND) does not keep the laser's causes out."""
+    r = Run()
+    r.step(x_m=5.0)
+    out = r.step(x_m=5.0, laser_age_s=1.0)
+    assert out.action is A.LEVEL_HOLD
+    assert (A.LEVEL_HOLD, Cause.LASER_STALE) in r.events
