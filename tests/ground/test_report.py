@@ -141,6 +141,26 @@ def _precision(folder: Path, *truth: str) -> dict[str, Any]:
     return result
 
 
+def _assert_row(text: str, label: str, values: list[float], samples: int | None = None) -> None:
+    """``text`` shows ``label`` followed by ``values`` to 4 decimals (and ``samples``).
+
+    The values come from ``analyze precision --json``, which rounds to 6 decimals, and the
+    page rounds the unrounded figure to 4: a value on a rounding boundary may show one unit
+    of the last place apart (0.0219498 -> "0.0219", but 0.02195 -> "0.0220").
+    """
+    number = r"(-?\d+\.\d{4})"
+    pattern = re.escape(label) + " " + " ".join([number] * len(values))
+    if samples is not None:
+        pattern += f" {samples}\\b"
+    found = re.search(pattern, text)
+    assert found is not None, f"no {label!r} row in {text!r}"
+    shown = [float(g) for g in found.groups()]
+    assert all(abs(a - b) <= 0.5e-4 + 1e-6 for a, b in zip(shown, values, strict=True)), (
+        shown,
+        values,
+    )
+
+
 def _chromium() -> str:
     path = shutil.which("chromium")
     if path is None:
@@ -197,8 +217,8 @@ def test_chromium_renders_the_flight_s_own_figures(
         ("estimate", _precision(flight)),
     ):
         for stat, name in (("std", "std"), ("rms", "RMS")):
-            row = " ".join(f"{p[f'{stat}_{a}_m']:.4f}" for a in "xyz")
-            assert f"this flight, {source} {name} {row} {p['samples']}" in text["precision"]
+            values = [p[f"{stat}_{a}_m"] for a in "xyz"]
+            _assert_row(text["precision"], f"this flight, {source} {name}", values, p["samples"])
     assert "QUT 2011 std 0.075368 0.080849 0.031913" in text["precision"]
     assert "MIT (RANGE) 2010 RMS 0.06 0.06 0.02" in text["precision"]
     assert "phase HOLD: take-off height reached" in text["timeline"]
@@ -294,8 +314,8 @@ def test_a_folder_without_truth_measures_the_estimate_only(flight: Path, tmp_pat
     (folder / "truth.txt").unlink()
     _, text = _report(folder, tmp_path)
     p = _precision(folder)
-    row = " ".join(f"{p[f'std_{a}_m']:.4f}" for a in "xyz")
-    assert f"this flight, estimate std {row}" in text["precision"]
+    values = [p[f"std_{a}_m"] for a in "xyz"]
+    _assert_row(text["precision"], "this flight, estimate std", values)
     assert "this flight, truth" not in text["precision"]
     assert "no truth.txt in the folder" in text["precision"]
 
