@@ -217,10 +217,19 @@ class CommandSender:
         return self._send_extern(packed, frame_no, take_control)
 
     def _number(self, takes_control: bool, confirm: bool) -> int:
-        """The Frame number of the next ExternControl (0: none; see send_extern_control)."""
+        """The Frame number of the next ExternControl (0: none; see send_extern_control).
+
+        A command is numbered too while a confirm is still awaited: the FC keeps one confirm
+        flag, and a Frame 0 command before it answered would cancel the confirm (counted lost
+        although nothing was lost), as two commands close together under load would.
+        """
+        if self.pending_confirms:
+            self._expire_confirms(self._clock.now_ns())  # a lost one is no longer awaited
         if not takes_control:
             self._unnumbered = self._confirm_every  # the next that takes control: numbered
-        elif not confirm and self._unnumbered + 1 < self._confirm_every:
+        elif (
+            not confirm and not self.pending_confirms and self._unnumbered + 1 < self._confirm_every
+        ):
             self._unnumbered += 1
             return 0
         else:

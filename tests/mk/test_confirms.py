@@ -18,7 +18,7 @@ from mkflight.clock import ManualClock
 from mkflight.config import MkConfig, SafetyConfig
 from mkflight.io.stream import memory_pair
 from mkflight.mk.link import LinkSettings, MkLink
-from mkflight.mk.messages import ExternControl
+from mkflight.mk.messages import Confirm, ExternControl
 from mkflight.mk.units import DEFAULT_CALIBRATION
 
 from .fakes import FakeFc, _until, link_settings
@@ -137,5 +137,25 @@ async def test_a_lost_confirm_of_a_numbered_command_is_counted_and_frame_0_never
     assert link.stats.confirms_lost == 2
     assert link.stats.confirms == 0
     assert not link.stats.rtt_ns
+    await link.close(release=False)
+    task.cancel()
+
+
+async def test_a_command_while_a_confirm_is_awaited_is_numbered_too() -> None:
+    """The FC keeps one confirm flag: a Frame 0 command before the confirm went out would
+    cancel it, and the confirm would be counted lost although nothing was lost. So while a
+    confirm is awaited (younger than the confirm timeout) the next command is numbered."""
+    clock = ManualClock()
+    link, fc = _silent_link(EVERY_4, clock)  # the confirms are late: not back yet
+    task = asyncio.create_task(fc.run())
+    link.start()
+    assert await _send(link, CONTROL) == 1
+    clock.advance(20_000_000)  # 20 ms later, the confirm still awaited
+    assert await _send(link, CONTROL) == 2
+    assert link.stats.confirms_lost == 0
+    fc.device.write(Confirm(1).encode() + Confirm(2).encode())  # both come back
+    await asyncio.wait_for(_until(lambda: link.stats.confirms == 2, fc), 1.0)
+    assert [await _send(link, CONTROL) for _ in range(4)] == [0, 0, 0, 3]
+    assert link.stats.confirms_lost == 0
     await link.close(release=False)
     task.cancel()
