@@ -18,7 +18,8 @@ NaN/inf in estimate or command (this step)       NONFINITE -> WARN; ``use_last_c
 laser pose older than ``laser_stale_s``          LASER_STALE -> LEVEL_HOLD, LAND after
                                                  ``degenerate_land_s``
 scan match degenerate                            SCAN_DEGENERATE -> same as LASER_STALE
-                                                 (neither raised while LAND is latched)
+                                                 (neither raised in a landing's last
+                                                 ``LASER_CAUSE_FLOOR_M``)
 no DebugOut for ``mk_stale_s``/``mk_release_s``  none here: the link re-subscribes, then
                                                  releases (see below)
 outside ``+-box_m`` of home / above max height   OUT_OF_BOX / ABOVE_MAX_HEIGHT -> HOLD, LAND
@@ -29,10 +30,12 @@ SIGINT / SIGTERM / --duration / task crash       STOP_* -> LAND (the phases rele
 pilot moves sticks / RC switch                   PILOT_OVERRIDE -> RELEASE at once
 ===============================================  ==========================================
 
-The laser's two causes are not raised while a latched cause already demands LAND or more:
-their whole timeline (LEVEL_HOLD, then LAND) can never exceed it, so they would change
-nothing the vehicle does, and near the floor the scan is not a health signal. In a
-landing's last 0.2 m the sensor is 0.05-0.25 m above the floor and a tilt of 0.05-0.17 rad
+The laser's two causes are not raised while a latched cause already demands LAND or more
+and the estimated height is below ``LASER_CAUSE_FLOOR_M``: their whole timeline
+(LEVEL_HOLD, then LAND) can never exceed LAND, so they would change nothing the vehicle
+does, and near the floor the scan is not a health signal. Higher up they are raised as
+ever (a laser that dies in a landing from 1 m is in the record). In a landing's last
+0.1-0.2 m the sensor is 0.1-0.25 m above the floor and a tilt of 0.05-0.17 rad
 puts the scan plane on the floor 1-2 m out; one attitude per 70 ms sweep, while the
 landing's attitude turns at 0.5-2 rad/s, does not level those beams well enough for the
 pipeline's floor filter, so such scans fail or go degenerate while the landing goes on as
@@ -65,6 +68,9 @@ from mkflight.conversions import S_PER_NS
 
 HOLD_LAND_S = 1.0
 """Default time from HOLD (box, height) to LAND; SPEC §5 says "hold, then land"."""
+LASER_CAUSE_FLOOR_M = 0.25
+"""Below this estimated height in a landing the laser's causes are not raised (module
+docstring): recorded touchdowns had failed scans at hat heights up to 0.18 m."""
 
 
 class FailsafeAction(enum.IntEnum):
@@ -253,8 +259,8 @@ class Failsafe:
             active.append((Cause.NONFINITE, f"{self._nonfinite_steps} step(s)"))
             if self._nonfinite_steps >= s.nonfinite_land_steps:
                 active.append((Cause.NONFINITE_REPEATED, f"{self._nonfinite_steps} steps"))
-        # Row 2: laser stale or degenerate; not raised once the vehicle is landing anyway.
-        if self.action < FailsafeAction.LAND:
+        # Row 2: laser stale or degenerate; not raised near the floor of a landing.
+        if self.action < FailsafeAction.LAND or not inp.height_m < LASER_CAUSE_FLOOR_M:
             if _stale(inp.laser_age_s, s.laser_stale_s):
                 active.append((Cause.LASER_STALE, f"pose age {inp.laser_age_s:.3f} s"))
             if inp.scan_degenerate:

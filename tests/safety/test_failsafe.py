@@ -18,6 +18,7 @@ from mkflight.safety import (
     FailsafeOutput,
     StopRequest,
 )
+from mkflight.safety.failsafe import LASER_CAUSE_FLOOR_M
 
 A = FailsafeAction
 S = SafetyConfig()
@@ -234,7 +235,8 @@ def test_latched_action_never_decreases(steps: list[dict[str, object]]) -> None:
         out = r.step(**kw)
         assert out.action >= prev
         raised = {e.cause for e in out.events if e.action is A.LEVEL_HOLD}
-        if prev >= A.LAND:  # a landing keeps the laser's causes out
+        low = kw["height_m"] < LASER_CAUSE_FLOOR_M  # type: ignore[operator]
+        if prev >= A.LAND and low:  # a landing near the floor keeps the laser's causes out
             assert not raised & {Cause.LASER_STALE, Cause.SCAN_DEGENERATE}
         assert out.action == max((a for _, a in out.causes), default=A.NONE)
         for cause, action in out.causes:
@@ -280,8 +282,18 @@ def test_a_laser_cause_after_any_land_is_not_raised(action_cause: dict[str, obje
     r = Run()
     r.steps(5, **action_cause)
     assert r.fs.action is A.LAND
-    out = r.steps(40, laser_age_s=math.inf, scan_degenerate=True)
+    out = r.steps(40, laser_age_s=math.inf, scan_degenerate=True, height_m=0.2)
     assert not {Cause.LASER_STALE, Cause.SCAN_DEGENERATE} & {c for c, _ in out.causes}
+    assert out.action is A.LAND
+
+
+@pytest.mark.parametrize("height_m", [LASER_CAUSE_FLOOR_M, 1.0, math.nan])
+def test_a_laser_that_dies_higher_up_in_a_landing_is_in_the_record(height_m: float) -> None:
+    """Above the floor (or with no height) a landing does not hide a dead laser."""
+    r = Run()
+    r.steps(5, stop=StopRequest.SIGINT, height_m=height_m)
+    out = r.step(laser_age_s=math.inf, height_m=height_m)
+    assert (A.LEVEL_HOLD, Cause.LASER_STALE) in r.events
     assert out.action is A.LAND
 
 
