@@ -34,6 +34,9 @@ def test_ruff_format_is_clean() -> None:
     assert result.returncode == 0, result.stdout + result.stderr
 
 
+MYPY_TIMEOUT_S = 900  # a cold run here takes ~60 s
+
+
 @job("mypy")
 def _mypy(_: Path) -> subprocess.CompletedProcess[str]:
     """mypy over the whole tree (tens of seconds of CPU on a fresh clone), run in the
@@ -44,6 +47,7 @@ def _mypy(_: Path) -> subprocess.CompletedProcess[str]:
         capture_output=True,
         text=True,
         check=False,
+        timeout=MYPY_TIMEOUT_S,  # a hung mypy must not hold the session's end
         preexec_fn=lambda: os.nice(MAIN_NICE),
     )
 

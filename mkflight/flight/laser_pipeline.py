@@ -274,7 +274,9 @@ def geometry_params(hat: HatSettings, laser: LaserConfig) -> FloatArray:
 def _plain_array(ranges: FloatArray) -> bool:
     """A 1-D array the compiled call takes as it is typed (else numba would compile anew)."""
     flags = ranges.flags
-    return bool(flags.c_contiguous and flags.writeable)
+    return bool(
+        ranges.dtype == np.float64 and ranges.ndim == 1 and flags.c_contiguous and flags.writeable
+    )
 
 
 def _usable_prior(motion_prior: Pose | None) -> Pose | None:
