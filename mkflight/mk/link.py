@@ -187,6 +187,8 @@ class MkLink:
                     # Nothing answered: still hand back (it may be a half-working FC), but
                     # quickly, so that "no FlightCtrl answered" is not delayed.
                     await self.release(quick=self.version is None)
+            if not release:
+                self._tx.drop_queued()  # a command still waiting for the line stays unsent
             if not self._port_dead:
                 with contextlib.suppress(LinkError):
                     self._rx.unsubscribe()  # stop the stream (it would expire)

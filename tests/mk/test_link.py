@@ -211,6 +211,20 @@ async def test_a_frame_due_before_a_chunk_arrived_leaves_before_the_chunk_is_han
         await device.close()
 
 
+async def test_a_close_without_release_sends_no_queued_command(
+    pair: tuple[MkLink, FakeFc],
+) -> None:
+    """A command still waiting for the line when the link closes stays unsent: it would
+    renew the FC's ~5 s hold on a command after the flight let go of the link."""
+    link, fc = pair
+    link.subscribe()
+    link.send_extern_control(ExternControl(nick=10, gas=120, config=1))  # queued behind 'd'
+    assert link.stats.delayed_writes == 1
+    await link.close(release=False)
+    assert fc.count("b") == 0
+    assert fc.frames[-1] == Frame(1, "d", b"\x00\x00\x00")  # the stream stopped, nothing else
+
+
 async def test_close_releases_control_with_config_zero(pair: tuple[MkLink, FakeFc]) -> None:
     link, fc = pair
     await link.connect()
