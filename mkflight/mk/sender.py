@@ -239,9 +239,7 @@ class CommandSender:
 
     def _send_extern(self, packed: bytes, frame_no: int, takes_control: bool) -> int:
         """The checked, numbered payload ``packed`` as a frame to the outbox."""
-        data = _encode_extern(packed)
-        if self.pending_confirms:
-            self._expire_confirms(self._clock.now_ns())
+        data = _encode_extern(packed)  # lost confirms were expired in _number
         self.send("b", data, frame_no)
         self._engaged = self._engaged or takes_control
         self._stats.commands_sent += 1
